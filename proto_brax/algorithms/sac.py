@@ -1,0 +1,114 @@
+"""PROTO-SAC: soft actor-critic with the iterative KL penalty towards π̄ (PROTO paper, Eq. 3–4).
+
+With α = 0 (α₀ = 0: direct finetuning, or SAC from scratch from a random init) every PROTO term vanishes and the
+losses are exactly SAC's; with τ = 0, π̄ stays π₀ (Frozen). One code path serves all of them.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from proto_brax.algorithms.learner import Learner, apply_grads
+from proto_brax.algorithms.regularizer import kl_penalty, polyak
+from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.data.dataset import Transition
+from proto_brax.networks import Networks, sample_tanh_gaussian
+
+
+def reduce_q(q: jax.Array, clipped_double_q: bool) -> jax.Array:
+    """Reduce the ensemble axis 0: min (clipped double-Q) or mean."""
+    return jnp.min(q, axis=0) if clipped_double_q else jnp.mean(q, axis=0)
+
+
+def critic_loss(
+    critic, learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
+    nets: Networks, cfg: FinetuneConfig,
+):
+    """Critic loss with the PROTO backup (Eq. 3).
+
+    y = r + γ (1 − d) [Q̄(s′, a′) − α_sac log π(a′|s′) − α (log π(a′|s′) − log π̄(a′|s′))],  a′ ~ π(·|s′),
+    where Q̄ is min (or mean) over the target ensemble and the α-term is present only with ``value_reg_backup``.
+    Loss = mean over ensemble members and batch of (Q_i(s, a) − y)².
+    """
+    mean, log_std = nets.actor.apply(learner.actor, batch.next_observations)
+    a_next, u_next, logp_next = sample_tanh_gaussian(key, mean, log_std)
+    q_next = reduce_q(nets.critic.apply(learner.critic_target, batch.next_observations, a_next), cfg.clipped_double_q)
+    v_next = q_next - jnp.exp(learner.log_alpha_sac) * logp_next
+    if cfg.value_reg_backup:
+        mean_bar, log_std_bar = nets.actor.apply(learner.pibar, batch.next_observations)
+        v_next = v_next - alpha * kl_penalty(u_next, mean, log_std, mean_bar, log_std_bar)
+    target = lax.stop_gradient(batch.rewards + hp.gamma * (1.0 - batch.terminals) * v_next)
+    q = nets.critic.apply(critic, batch.observations, batch.actions)
+    loss = jnp.mean(jnp.square(q - target))
+    return loss, {"critic_loss": loss, "q_mean": jnp.mean(q), "q_max": jnp.max(q), "target_mean": jnp.mean(target)}
+
+
+def actor_loss(
+    actor, critic, learner: Learner, obs: jax.Array, key: jax.Array, alpha: jax.Array,
+    nets: Networks, cfg: FinetuneConfig,
+):
+    """Actor loss with the PROTO penalty (Eq. 4): E[α_sac log π(a|s) + α (log π(a|s) − log π̄(a|s)) − Q(s, a)]."""
+    mean, log_std = nets.actor.apply(actor, obs)
+    a, u, logp = sample_tanh_gaussian(key, mean, log_std)
+    mean_bar, log_std_bar = nets.actor.apply(learner.pibar, obs)
+    kl = kl_penalty(u, mean, log_std, lax.stop_gradient(mean_bar), lax.stop_gradient(log_std_bar))
+    q = reduce_q(nets.critic.apply(critic, obs, a), cfg.clipped_double_q)
+    alpha_sac = lax.stop_gradient(jnp.exp(learner.log_alpha_sac))
+    loss = jnp.mean(alpha_sac * logp + alpha * kl - q)
+    return loss, {"actor_loss": loss, "entropy": -jnp.mean(logp), "kl_pibar": jnp.mean(kl), "log_prob": logp}
+
+
+def temperature_loss(log_alpha_sac: jax.Array, log_prob: jax.Array, target_entropy: jax.Array) -> jax.Array:
+    """SAC's automatic entropy tuning: minimize log α_sac · (H(π) − H̄) with H(π) ≈ −log π(a|s) (stop-gradient)."""
+    return log_alpha_sac * jnp.mean(lax.stop_gradient(-log_prob) - target_entropy)
+
+
+def update(
+    learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
+    nets: Networks, cfg: FinetuneConfig, step: jax.Array,
+) -> tuple[Learner, dict]:
+    """One PROTO-SAC gradient step: critic, actor (against the new critic), temperature, target Q̄ and π̄ Polyak."""
+    del step  # SAC updates every component every step
+    k_critic, k_actor = jax.random.split(key)
+    (_, c_info), grads = jax.value_and_grad(critic_loss, has_aux=True)(
+        learner.critic, learner, batch, k_critic, alpha, hp, nets, cfg
+    )
+    critic, critic_opt = apply_grads(grads, learner.critic_opt, learner.critic)
+
+    (_, a_info), grads = jax.value_and_grad(actor_loss, has_aux=True)(
+        learner.actor, critic, learner, batch.observations, k_actor, alpha, nets, cfg
+    )
+    actor, actor_opt = apply_grads(grads, learner.actor_opt, learner.actor)
+
+    target_entropy = hp.target_entropy_scale * batch.actions.shape[-1]
+    t_loss, grads = jax.value_and_grad(temperature_loss)(learner.log_alpha_sac, a_info.pop("log_prob"), target_entropy)
+    log_alpha_sac, alpha_opt = apply_grads(grads, learner.alpha_opt, learner.log_alpha_sac)
+
+    learner = learner.replace(
+        actor=actor,
+        critic=critic,
+        critic_target=polyak(critic, learner.critic_target, hp.target_tau),
+        pibar=polyak(actor, learner.pibar, hp.tau),
+        actor_opt=actor_opt,
+        critic_opt=critic_opt,
+        log_alpha_sac=log_alpha_sac,
+        alpha_opt=alpha_opt,
+    )
+    return learner, {**c_info, **a_info, "temperature_loss": t_loss, "alpha_sac": jnp.exp(log_alpha_sac)}
+
+
+def act(nets: Networks, actor, obs: jax.Array, key: jax.Array, hp: HParams, deterministic: bool) -> jax.Array:
+    mean, log_std = nets.actor.apply(actor, obs)
+    if deterministic:
+        return jnp.tanh(mean)
+    return sample_tanh_gaussian(key, mean, log_std)[0]
+
+
+def deviation(nets: Networks, actor, other, obs: jax.Array, key: jax.Array) -> jax.Array:
+    """Monte-Carlo KL(π‖other) on a batch of states (a diagnostic: π‖π̄ and π‖π₀)."""
+    mean, log_std = nets.actor.apply(actor, obs)
+    mean_o, log_std_o = nets.actor.apply(other, obs)
+    _, u, _ = sample_tanh_gaussian(key, mean, log_std)
+    return jnp.mean(kl_penalty(u, mean, log_std, mean_o, log_std_o))

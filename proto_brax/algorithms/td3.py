@@ -1,0 +1,96 @@
+"""PROTO-TD3: TD3 with the iterative MSE penalty towards π̄ (PROTO paper, appendix).
+
+Actor loss E[−λ Q₁(s, π(s)) + α ‖π(s) − π̄(s)‖²] with λ = β / mean|Q₁| (stop-gradient, as TD3+BC normalizes);
+target-policy smoothing, clipped double-Q and a delayed actor as in TD3. With ``value_reg_backup`` the critic target
+also subtracts α ‖a′ − π̄(s′)‖² for the smoothed target action a′, mirroring PROTO-SAC's KL backup.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from proto_brax.algorithms.learner import Learner, apply_grads
+from proto_brax.algorithms.regularizer import mse_penalty, polyak
+from proto_brax.algorithms.sac import reduce_q
+from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.data.dataset import Transition
+from proto_brax.networks import Networks
+
+
+def critic_loss(
+    critic, learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
+    nets: Networks, cfg: FinetuneConfig,
+):
+    """y = r + γ (1 − d) [Q̄(s′, a′) − α ‖a′ − π̄(s′)‖²], a′ = clip(π_targ(s′) + clip(ε, ±c), ±1), ε ~ N(0, σ²)."""
+    a_targ = nets.actor.apply(learner.actor_target, batch.next_observations)
+    noise = jnp.clip(hp.policy_noise * jax.random.normal(key, a_targ.shape), -hp.noise_clip, hp.noise_clip)
+    a_next = jnp.clip(a_targ + noise, -1.0, 1.0)
+    v_next = reduce_q(nets.critic.apply(learner.critic_target, batch.next_observations, a_next), cfg.clipped_double_q)
+    if cfg.value_reg_backup:
+        v_next = v_next - alpha * mse_penalty(a_next, nets.actor.apply(learner.pibar, batch.next_observations))
+    target = lax.stop_gradient(batch.rewards + hp.gamma * (1.0 - batch.terminals) * v_next)
+    q = nets.critic.apply(critic, batch.observations, batch.actions)
+    loss = jnp.mean(jnp.square(q - target))
+    return loss, {"critic_loss": loss, "q_mean": jnp.mean(q), "q_max": jnp.max(q), "target_mean": jnp.mean(target)}
+
+
+def actor_loss(actor, critic, learner: Learner, obs: jax.Array, alpha: jax.Array, hp: HParams, nets: Networks):
+    """E[−λ Q₁(s, π(s)) + α ‖π(s) − π̄(s)‖²], λ = β / mean|Q₁(s, π(s))| (stop-gradient)."""
+    a = nets.actor.apply(actor, obs)
+    q = nets.critic.apply(critic, obs, a)[0]
+    lam = lax.stop_gradient(hp.beta / jnp.mean(jnp.abs(q)))
+    penalty = mse_penalty(a, lax.stop_gradient(nets.actor.apply(learner.pibar, obs)))
+    loss = jnp.mean(-lam * q + alpha * penalty)
+    return loss, {"actor_loss": loss, "kl_pibar": jnp.mean(penalty), "lambda": lam}
+
+
+def update(
+    learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
+    nets: Networks, cfg: FinetuneConfig, step: jax.Array,
+) -> tuple[Learner, dict]:
+    """Critic every call; actor, target actor, target critic and π̄ every ``policy_delay`` calls.
+
+    ``step`` must be unbatched (the same for every run of a grid) so that ``lax.cond`` stays a real branch under vmap
+    instead of computing both sides.
+    """
+    (_, c_info), grads = jax.value_and_grad(critic_loss, has_aux=True)(
+        learner.critic, learner, batch, key, alpha, hp, nets, cfg
+    )
+    critic, critic_opt = apply_grads(grads, learner.critic_opt, learner.critic)
+    learner = learner.replace(critic=critic, critic_opt=critic_opt)
+
+    def actor_step(learner):
+        (_, a_info), grads = jax.value_and_grad(actor_loss, has_aux=True)(
+            learner.actor, learner.critic, learner, batch.observations, alpha, hp, nets
+        )
+        actor, actor_opt = apply_grads(grads, learner.actor_opt, learner.actor)
+        learner = learner.replace(
+            actor=actor,
+            actor_opt=actor_opt,
+            actor_target=polyak(actor, learner.actor_target, hp.target_tau),
+            critic_target=polyak(learner.critic, learner.critic_target, hp.target_tau),
+            pibar=polyak(actor, learner.pibar, hp.tau),
+        )
+        return learner, a_info
+
+    def skip(learner):
+        zero = jnp.zeros(())
+        return learner, {"actor_loss": zero, "kl_pibar": zero, "lambda": zero}
+
+    learner, a_info = lax.cond(step % cfg.policy_delay == 0, actor_step, skip, learner)
+    return learner, {**c_info, **a_info}
+
+
+def act(nets: Networks, actor, obs: jax.Array, key: jax.Array, hp: HParams, deterministic: bool) -> jax.Array:
+    a = nets.actor.apply(actor, obs)
+    if deterministic:
+        return a
+    return jnp.clip(a + hp.expl_noise * jax.random.normal(key, a.shape), -1.0, 1.0)
+
+
+def deviation(nets: Networks, actor, other, obs: jax.Array, key: jax.Array) -> jax.Array:
+    """Mean ‖π(s) − other(s)‖² on a batch of states (a diagnostic: π vs π̄ and π vs π₀)."""
+    del key
+    return jnp.mean(mse_penalty(nets.actor.apply(actor, obs), nets.actor.apply(other, obs)))

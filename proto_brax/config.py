@@ -1,0 +1,134 @@
+"""Static configuration (shapes, loop counts, switches) and traced hyper-parameters (what a grid varies).
+
+Anything that changes array shapes or the program's structure is a field of the frozen ``FinetuneConfig``, closed over
+by ``make_finetune``. Scalars that a sweep varies are leaves of the ``HParams`` pytree, so a τ×η×α₀×seed grid is a
+leading batch axis of one compiled program rather than one compilation per point.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from proto_brax import envs
+from proto_brax.data.replay import SAMPLING_MODES
+from proto_brax.networks import NetworkConfig
+
+ALGOS = ("sac", "td3")
+
+
+@struct.dataclass
+class HParams:
+    """Traced scalar hyper-parameters (defaults: PROTO paper / reference code for MuJoCo, shared/FACTS.md).
+
+    Each leaf is a float32 scalar for one run, or an array with a leading grid axis for a vmapped sweep.
+    """
+
+    tau: jax.Array = 5e-3  # π̄ Polyak speed: π̄ ← τ π + (1 − τ) π̄ (τ = 0: Frozen, π̄ stays π₀)
+    eta: jax.Array = 0.9  # annealing speed of the regularization weight α
+    alpha0: jax.Array = 2.0  # initial regularization weight α₀ (0: direct finetuning / plain SAC or TD3)
+    alpha_min: jax.Array = 0.0  # floor of the annealed α
+    anneal_horizon: jax.Array = 1e6  # N in α_t = max(α₀ (1 − η t / N), α_min), in env steps
+    gamma: jax.Array = 0.99
+    target_tau: jax.Array = 5e-3  # Polyak speed of the target critic (and TD3's target actor)
+    lr_actor: jax.Array = 3e-4
+    lr_critic: jax.Array = 3e-4
+    lr_alpha: jax.Array = 3e-4  # learning rate of SAC's entropy temperature
+    alpha_sac_init: jax.Array = 0.01  # initial SAC entropy temperature (reference code: 0.01 when finetuning)
+    target_entropy_scale: jax.Array = -0.5  # target entropy = scale × |A| (reference code: −|A|/2)
+    beta: jax.Array = 4.0  # TD3: λ = β / mean|Q| (paper: 4)
+    policy_noise: jax.Array = 0.2  # TD3 target-policy smoothing noise
+    noise_clip: jax.Array = 0.5
+    expl_noise: jax.Array = 0.1  # TD3 exploration noise
+
+    @classmethod
+    def create(cls, **kwargs) -> "HParams":
+        """Build from Python numbers (float32 scalars), rejecting unknown names."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(kwargs) - names
+        if unknown:
+            raise ValueError(f"Unknown hyper-parameter(s) {sorted(unknown)}: valid names are {sorted(names)}.")
+        defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+        return cls(**{k: jnp.asarray(kwargs.get(k, v), jnp.float32) for k, v in defaults.items()})
+
+
+def validate_hparams(hp: HParams) -> None:
+    """Host-side checks, before anything compiles. Works on scalars and on grid-batched leaves."""
+    v = {f.name: np.asarray(getattr(hp, f.name)) for f in dataclasses.fields(hp)}
+    for name, arr in v.items():
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"Hyper-parameter {name} must be finite, got {arr}.")
+    if np.any((v["tau"] < 0) | (v["tau"] > 1)):
+        raise ValueError(f"tau must lie in [0, 1] (0 = Frozen, π̄ fixed at π₀); got {v['tau']}.")
+    for name in ("eta", "alpha0", "alpha_min"):
+        if np.any(v[name] < 0):
+            raise ValueError(f"{name} must be >= 0; got {v[name]}. Use alpha0 0 for direct finetuning.")
+    if np.any(v["anneal_horizon"] <= 0):
+        raise ValueError(f"anneal_horizon must be > 0; got {v['anneal_horizon']}.")
+    if np.any((v["gamma"] < 0) | (v["gamma"] > 1)):
+        raise ValueError(f"gamma must lie in [0, 1]; got {v['gamma']}.")
+    if np.any((v["target_tau"] < 0) | (v["target_tau"] > 1)):
+        raise ValueError(f"target_tau must lie in [0, 1]; got {v['target_tau']}.")
+    for name in ("lr_actor", "lr_critic", "lr_alpha", "alpha_sac_init"):
+        if np.any(v[name] <= 0):
+            raise ValueError(f"{name} must be > 0; got {v[name]}.")
+
+
+@dataclasses.dataclass(frozen=True)
+class FinetuneConfig:
+    """Static configuration of an online (fine)tuning run; every field fixes shapes or program structure."""
+
+    env: str = "hopper"  # registered task name (proto_brax.envs.REGISTRY)
+    backend: str | None = None  # brax backend; None = the env's measured default
+    algo: Literal["sac", "td3"] = "sac"  # PROTO-SAC (KL to π̄) or PROTO-TD3 (MSE to π̄)
+    net: NetworkConfig = NetworkConfig()
+    steps: int = 100_000  # online env steps per run
+    eval_every: int = 5_000  # env steps per chunk; one evaluation at the end of each chunk
+    eval_episodes: int = 10  # deterministic evaluation episodes (vectorized)
+    num_envs: int = 1  # parallel envs per run (each step inserts num_envs transitions)
+    batch_size: int = 256
+    buffer_capacity: int | None = None  # online replay capacity; None = steps × num_envs
+    sampling: Literal["symmetric", "union", "online"] = "symmetric"
+    offline_fraction: float = 0.5  # share of each batch drawn from the offline data ("symmetric" mode)
+    learning_starts: int = 1_000  # env steps collected before the first update
+    updates_per_step: int = 1  # gradient steps per env step (UTD ratio)
+    value_reg_backup: bool = True  # the PROTO penalty inside the critic target (paper: off for AntMaze and Adroit)
+    clipped_double_q: bool = True  # min over the critic ensemble (else mean; paper: off for AntMaze)
+    policy_delay: int = 2  # TD3: actor and targets update every policy_delay critic updates
+    episode_length: int | None = None  # None = the env's registered length
+
+    def __post_init__(self):
+        envs.get_spec(self.env)
+        if self.backend is not None:
+            envs.check_backend(self.backend)
+        if self.algo not in ALGOS:
+            raise ValueError(f"Unknown algo {self.algo!r}: choose one of {list(ALGOS)}.")
+        if self.sampling not in SAMPLING_MODES:
+            raise ValueError(f"Unknown sampling {self.sampling!r}: choose one of {list(SAMPLING_MODES)}.")
+        for name in ("steps", "eval_every", "eval_episodes", "num_envs", "batch_size", "updates_per_step",
+                     "learning_starts", "policy_delay"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1; got {getattr(self, name)}.")
+        if self.steps % self.eval_every:
+            raise ValueError(f"steps ({self.steps}) must be a multiple of eval_every ({self.eval_every}).")
+        if not 0.0 <= self.offline_fraction <= 1.0:
+            raise ValueError(f"offline_fraction must lie in [0, 1]; got {self.offline_fraction}.")
+        if self.buffer_capacity is not None and self.buffer_capacity < self.num_envs:
+            raise ValueError(f"buffer_capacity must be >= num_envs; got {self.buffer_capacity}.")
+
+    @property
+    def num_chunks(self) -> int:
+        return self.steps // self.eval_every
+
+    @property
+    def capacity(self) -> int:
+        return self.buffer_capacity or self.steps * self.num_envs
+
+    @property
+    def horizon(self) -> int:
+        return self.episode_length or envs.get_spec(self.env).episode_length

@@ -1,0 +1,96 @@
+"""Pure, on-device replay: a fixed-capacity ring buffer of online transitions plus the shared offline dataset.
+
+The offline dataset is never copied into a run's buffer: ``sample`` reads it directly, so a grid of runs vmapped with
+``in_axes=None`` for the dataset holds one copy of it in memory. Two ways of mixing the two sources:
+
+* ``"symmetric"`` (RLPD/PROTO-style symmetric sampling): a fixed fraction of every batch comes from the offline
+  dataset, the rest from the online buffer;
+* ``"union"`` ("dataset in the buffer"): every element is drawn uniformly from offline ∪ online, so the online share
+  grows as the buffer fills (what the PROTO reference code does when it loads D4RL into its replay buffer).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from proto_brax.data.dataset import OfflineDataset, Transition
+
+SamplingMode = Literal["symmetric", "union", "online"]
+SAMPLING_MODES = ("symmetric", "union", "online")
+
+
+@struct.dataclass
+class ReplayBuffer:
+    data: Transition  # arrays with leading axis ``capacity``
+    position: jax.Array  # next write index (int32)
+    size: jax.Array  # number of valid rows (int32)
+
+    @property
+    def capacity(self) -> int:
+        return self.data.rewards.shape[0]
+
+
+def replay_init(capacity: int, observation_size: int, action_size: int) -> ReplayBuffer:
+    z = lambda *shape: jnp.zeros((capacity, *shape), jnp.float32)  # noqa: E731
+    data = Transition(
+        observations=z(observation_size),
+        actions=z(action_size),
+        rewards=z(),
+        next_observations=z(observation_size),
+        terminals=z(),
+        timeouts=z(),
+    )
+    return ReplayBuffer(data=data, position=jnp.zeros((), jnp.int32), size=jnp.zeros((), jnp.int32))
+
+
+def replay_insert(buffer: ReplayBuffer, batch: Transition) -> ReplayBuffer:
+    """Insert ``n`` transitions (leading axis n), overwriting the oldest once full."""
+    n = batch.rewards.shape[0]
+    idx = (buffer.position + jnp.arange(n)) % buffer.capacity
+    data = jax.tree.map(lambda buf, x: buf.at[idx].set(x.astype(buf.dtype)), buffer.data, batch)
+    return ReplayBuffer(
+        data=data,
+        position=(buffer.position + n) % buffer.capacity,
+        size=jnp.minimum(buffer.size + n, buffer.capacity),
+    )
+
+
+def _take(data: Transition, idx: jax.Array) -> Transition:
+    return jax.tree.map(lambda x: jnp.take(x, idx, axis=0), data)
+
+
+def replay_sample(
+    key: jax.Array,
+    buffer: ReplayBuffer,
+    dataset: OfflineDataset | None,
+    batch_size: int,
+    mode: SamplingMode = "symmetric",
+    offline_fraction: float = 0.5,
+) -> Transition:
+    """Sample a training batch (static ``batch_size``, ``mode`` and ``offline_fraction``).
+
+    The online part draws from ``[0, size)``; callers must insert at least one transition before sampling online
+    (the online loop guarantees it with ``learning_starts >= 1``).
+    """
+    k_off, k_on, k_mix = jax.random.split(key, 3)
+    online_hi = jnp.maximum(buffer.size, 1)
+    if dataset is None or mode == "online":
+        return _take(buffer.data, jax.random.randint(k_on, (batch_size,), 0, online_hi))
+    n_data = dataset.rewards.shape[0]
+    if mode == "symmetric":
+        n_off = int(round(offline_fraction * batch_size))
+        off = _take(dataset, jax.random.randint(k_off, (n_off,), 0, n_data))
+        on = _take(buffer.data, jax.random.randint(k_on, (batch_size - n_off,), 0, online_hi))
+        return jax.tree.map(lambda a, b: jnp.concatenate([a, b.astype(a.dtype)]), off, on)
+    if mode == "union":
+        i = jax.random.randint(k_mix, (batch_size,), 0, n_data + buffer.size)
+        from_data = i < n_data
+        off = _take(dataset, jnp.minimum(i, n_data - 1))
+        on = _take(buffer.data, jnp.clip(i - n_data, 0, buffer.capacity - 1))
+        pick = lambda a, b: jnp.where(from_data.reshape((-1,) + (1,) * (a.ndim - 1)), a, b.astype(a.dtype))  # noqa: E731
+        return jax.tree.map(pick, off, on)
+    raise ValueError(f"Unknown sampling mode {mode!r}: choose one of {list(SAMPLING_MODES)}.")

@@ -1,0 +1,185 @@
+"""Environment registry, time-limit/auto-reset stepping and normalized-score references.
+
+Every task is a Brax ``Env``. We do our own time limit and auto-reset (instead of brax's ``EpisodeWrapper`` +
+``AutoResetWrapper``) for two reasons:
+
+* a time-limit truncation must not cut bootstrapping: the stored transition keeps the *true* next observation and
+  ``terminal = 0``; only the environment's own termination (e.g. the hopper falling) sets ``terminal = 1``;
+* brax's auto-reset restarts every episode from the same cached first state; we draw a fresh initial state per episode.
+
+Default backends were chosen from measured control steps/s at batch 1 on the project's 2-core CPU (shared/FACTS.md,
+re-measured by ``benchmarks/throughput.py``): one env step must stay small beside one SAC update (~5 ms), so the most
+accurate backend that costs under ~10% of an update is the default.
+
+| env         | generalized | positional | spring | mjx  | default     |
+|-------------|-------------|------------|--------|------|-------------|
+| hopper      | 3.7k        | 6.3k       | 21k    | 2.1k | generalized |
+| walker2d    | 1.8k        | 5.7k       | 16k    | 1.4k | positional  |
+| halfcheetah | 0.7k        | 1.1k       | 4.6k   | 0.6k | positional  |
+| ant         | 2.4k        | 2.4k       | 8.6k   | 2.4k | generalized |
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from brax.envs.base import Env, State
+from flax import struct
+
+from proto_brax.data.dataset import Transition
+
+BACKENDS = ("generalized", "positional", "spring", "mjx")
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvSpec:
+    """A registered task.
+
+    ``ref_random`` / ``ref_expert`` are the reference returns of the normalized score
+    ``100 * (R - R_random) / (R_expert - R_random)``; ``None`` until measured (then scores are reported as NaN).
+    """
+
+    name: str
+    default_backend: str
+    episode_length: int = 1000
+    ref_random: float | None = None
+    ref_expert: float | None = None
+    kwargs: tuple[tuple[str, Any], ...] = ()
+
+
+class PointReach(Env):
+    """A tiny, fast 2-D point-mass task for tests and smoke runs.
+
+    The agent starts uniformly in [-1, 1]^2 and moves by ``0.2 * action`` per step; the reward is
+    ``1 - |x'|`` (highest at the origin). Leaving the box |x|_inf > 1.9 terminates the episode, so the task has true
+    terminals as well as time-limit truncations. A good policy walks to the origin in ~5 steps and stays:
+    return ≈ 49 of at most 50; the uniform random policy scores ≈ −0.5.
+    """
+
+    def __init__(self, backend: str = "generalized"):
+        del backend  # no physics engine: the dynamics are the same under every name
+
+    def reset(self, rng: jax.Array) -> State:
+        x = jax.random.uniform(rng, (2,), minval=-1.0, maxval=1.0)
+        zero = jnp.zeros(())
+        return State(pipeline_state=x, obs=self._obs(x), reward=zero, done=zero, metrics={}, info={})
+
+    def step(self, state: State, action: jax.Array) -> State:
+        x = state.pipeline_state + 0.2 * jnp.clip(action, -1.0, 1.0)
+        reward = 1.0 - jnp.linalg.norm(x)
+        done = (jnp.max(jnp.abs(x)) > 1.9).astype(jnp.float32)
+        return state.replace(pipeline_state=x, obs=self._obs(x), reward=reward, done=done)
+
+    @staticmethod
+    def _obs(x: jax.Array) -> jax.Array:
+        return jnp.concatenate([x, jnp.sin(3.0 * x)])
+
+    @property
+    def observation_size(self) -> int:
+        return 4
+
+    @property
+    def action_size(self) -> int:
+        return 2
+
+    @property
+    def backend(self) -> str:
+        return "none"
+
+
+REGISTRY: dict[str, EnvSpec] = {
+    "hopper": EnvSpec("hopper", "generalized"),
+    "walker2d": EnvSpec("walker2d", "positional"),
+    "halfcheetah": EnvSpec("halfcheetah", "positional"),
+    "ant": EnvSpec("ant", "generalized"),
+    # Point references: mean return over 100 episodes (seed 123) of the uniform policy and of the analytic controller
+    # a = clip(-x / 0.2, -1, 1); re-measured by tests/test_engine.py::test_point_references.
+    "point": EnvSpec("point", "generalized", episode_length=50, ref_random=-0.5, ref_expert=49.0),
+}
+
+
+def get_spec(name: str) -> EnvSpec:
+    if name not in REGISTRY:
+        raise ValueError(f"Unknown env {name!r}: choose one of {sorted(REGISTRY)}.")
+    return REGISTRY[name]
+
+
+def check_backend(backend: str) -> None:
+    if backend not in BACKENDS:
+        raise ValueError(f"Unknown backend {backend!r}: choose one of {list(BACKENDS)}.")
+
+
+def make_env(name: str, backend: str | None = None) -> Env:
+    """Build the raw Brax env (no wrappers) for a registered task; validates name and backend."""
+    spec = get_spec(name)
+    backend = backend or spec.default_backend
+    check_backend(backend)
+    if name == "point":
+        return PointReach(backend)
+    from brax import envs as brax_envs  # imported lazily: brax's import is slow
+
+    return brax_envs.get_environment(name, backend=backend, **dict(spec.kwargs))
+
+
+def mjx_xla_flags(flags: str | None = None) -> str:
+    """XLA_FLAGS with the CPU scheduler fix MJX needs (FACTS.md: batched MJX hangs on CPU without it).
+
+    Pure: returns the new value for the caller (an entry point, before jax initializes) to set.
+    """
+    flag = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
+    flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
+    return flags if flag in flags else f"{flags} {flag}".strip()
+
+
+def normalized_score(name: str, returns):
+    """D4RL-style normalized score ``100 (R - R_random) / (R_expert - R_random)``; NaN where no reference exists."""
+    spec = get_spec(name)
+    if spec.ref_random is None or spec.ref_expert is None:
+        return jnp.full_like(jnp.asarray(returns, jnp.float32), jnp.nan)
+    return 100.0 * (jnp.asarray(returns) - spec.ref_random) / (spec.ref_expert - spec.ref_random)
+
+
+@struct.dataclass
+class EnvState:
+    """Brax state plus our own episode bookkeeping."""
+
+    brax_state: State
+    t: jax.Array  # steps taken in the current episode
+    episode_return: jax.Array
+
+
+def env_reset(env: Env, key: jax.Array) -> EnvState:
+    s = env.reset(key)
+    return EnvState(brax_state=s, t=jnp.zeros((), jnp.int32), episode_return=jnp.zeros(()))
+
+
+def env_step(
+    env: Env, episode_length: int, state: EnvState, action: jax.Array, key: jax.Array
+) -> tuple[EnvState, Transition, jax.Array, jax.Array]:
+    """Step one env, auto-resetting at the end of an episode.
+
+    Returns ``(state', transition, episode_done, finished_return)``; ``finished_return`` is the return of the
+    episode that just ended (meaningful only where ``episode_done``).
+    """
+    nxt = env.step(state.brax_state, action)
+    t = state.t + 1
+    terminal = nxt.done.astype(jnp.float32)
+    timeout = jnp.logical_and(t >= episode_length, terminal == 0).astype(jnp.float32)
+    done = jnp.maximum(terminal, timeout)
+    ret = state.episode_return + nxt.reward
+    transition = Transition(
+        observations=state.brax_state.obs,
+        actions=action,
+        rewards=nxt.reward,
+        next_observations=nxt.obs,
+        terminals=terminal,
+        timeouts=timeout,
+    )
+    fresh = env.reset(key)
+    brax_state = jax.tree.map(lambda a, b: jnp.where(done > 0, a, b), fresh, nxt)
+    new = EnvState(brax_state=brax_state, t=jnp.where(done > 0, 0, t), episode_return=jnp.where(done > 0, 0.0, ret))
+    return new, transition, done, ret

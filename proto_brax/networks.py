@@ -1,0 +1,149 @@
+"""Network factories: MLP, tanh-Gaussian actor, deterministic actor, critic ensemble and state value (flax.linen)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
+_LOG2 = math.log(2.0)
+
+
+class MLP(nn.Module):
+    hidden: Sequence[int]
+    out: int
+    layer_norm: bool = False
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for h in self.hidden:
+            x = nn.Dense(h)(x)
+            if self.layer_norm:
+                x = nn.LayerNorm()(x)
+            x = nn.relu(x)
+        return nn.Dense(self.out)(x)
+
+
+class GaussianActor(nn.Module):
+    """Outputs (mean, log_std) of a Gaussian over the pre-tanh action u; the action is a = tanh(u)."""
+
+    action_size: int
+    hidden: Sequence[int]
+    layer_norm: bool = False
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        out = MLP(self.hidden, 2 * self.action_size, self.layer_norm)(obs)
+        mean, log_std = jnp.split(out, 2, axis=-1)
+        # Smooth squashing of log_std into [LOG_STD_MIN, LOG_STD_MAX] keeps gradients alive at the bounds.
+        log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (jnp.tanh(log_std) + 1.0)
+        return mean, log_std
+
+
+class DeterministicActor(nn.Module):
+    action_size: int
+    hidden: Sequence[int]
+    layer_norm: bool = False
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        return jnp.tanh(MLP(self.hidden, self.action_size, self.layer_norm)(obs))
+
+
+class Critic(nn.Module):
+    hidden: Sequence[int]
+    layer_norm: bool = False
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+        return MLP(self.hidden, 1, self.layer_norm)(jnp.concatenate([obs, action], -1))[..., 0]
+
+
+class CriticEnsemble(nn.Module):
+    """``num`` independent critics in one module (nn.vmap); returns Q of shape [num, ...]."""
+
+    hidden: Sequence[int]
+    num: int = 2
+    layer_norm: bool = False
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+        ensemble = nn.vmap(
+            Critic,
+            variable_axes={"params": 0},
+            split_rngs={"params": True},
+            in_axes=None,
+            out_axes=0,
+            axis_size=self.num,
+        )
+        return ensemble(self.hidden, self.layer_norm)(obs, action)
+
+
+class ValueNet(nn.Module):
+    hidden: Sequence[int]
+    layer_norm: bool = False
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        return MLP(self.hidden, 1, self.layer_norm)(obs)[..., 0]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# tanh-Gaussian distribution helpers (pure functions on (mean, log_std))
+
+
+def gaussian_log_prob(u: jax.Array, mean: jax.Array, log_std: jax.Array) -> jax.Array:
+    """log N(u; mean, exp(log_std)) summed over the last axis."""
+    z = (u - mean) * jnp.exp(-log_std)
+    return jnp.sum(-0.5 * z**2 - log_std - 0.5 * math.log(2 * math.pi), axis=-1)
+
+
+def tanh_log_det(u: jax.Array) -> jax.Array:
+    """log |d tanh(u)/du| summed over the last axis, in the stable form 2 (log 2 - u - softplus(-2u))."""
+    return jnp.sum(2.0 * (_LOG2 - u - jax.nn.softplus(-2.0 * u)), axis=-1)
+
+
+def sample_tanh_gaussian(key: jax.Array, mean: jax.Array, log_std: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Reparameterized sample. Returns (action, pre-tanh u, log π(action))."""
+    u = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
+    return jnp.tanh(u), u, gaussian_log_prob(u, mean, log_std) - tanh_log_det(u)
+
+
+def tanh_gaussian_log_prob(action: jax.Array, mean: jax.Array, log_std: jax.Array, eps: float = 1e-6) -> jax.Array:
+    """log π(a) of a given squashed action (e.g. a dataset action, for BC); a is clipped away from ±1 first."""
+    u = jnp.arctanh(jnp.clip(action, -1.0 + eps, 1.0 - eps))
+    return gaussian_log_prob(u, mean, log_std) - tanh_log_det(u)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Static network shapes (paper: 2 x 256, ReLU, LayerNorm on Q and V except halfcheetah)."""
+
+    hidden: tuple[int, ...] = (256, 256)
+    critic_layer_norm: bool = True
+    actor_layer_norm: bool = False
+    num_qs: int = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class Networks:
+    actor: nn.Module
+    critic: CriticEnsemble
+    value: ValueNet
+
+
+def make_networks(cfg: NetworkConfig, action_size: int, deterministic: bool = False) -> Networks:
+    actor_cls = DeterministicActor if deterministic else GaussianActor
+    return Networks(
+        actor=actor_cls(action_size, cfg.hidden, cfg.actor_layer_norm),
+        critic=CriticEnsemble(cfg.hidden, cfg.num_qs, cfg.critic_layer_norm),
+        value=ValueNet(cfg.hidden, cfg.critic_layer_norm),
+    )

@@ -1,0 +1,167 @@
+"""Online (fine)tuning: one jitted step = env step + buffer insert + sample + update + π̄/targets + α schedule.
+
+``make_finetune(cfg)`` returns a ``Finetune`` of pure functions of one run:
+
+* ``init(hp, key, pretrained, dataset) -> TrainState``
+* ``chunk(state, hp, dataset, start) -> (state, metrics)``: ``cfg.eval_every`` steps in ``lax.scan``, then one
+  vectorized deterministic evaluation. ``start`` (the global step at which the chunk begins) is *unbatched*: under
+  ``vmap`` it stays a scalar, so the warm-up test ``t >= learning_starts`` and TD3's delay are real ``lax.cond``
+  branches, not both-sides selects.
+* ``finetune(hp, key, pretrained, dataset) -> (state, metrics)``: the whole run (init + scan over chunks).
+
+None of them knows about grids: a sweep is ``jit(vmap(fn, in_axes=(0, 0, None, None)))`` at the call site
+(``proto_brax.train.grid``), the dataset and the pretrained bundle shared with ``in_axes=None``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+from jax import lax
+
+from proto_brax import envs
+from proto_brax.algorithms import sac, td3
+from proto_brax.algorithms.learner import Learner, Pretrained, init_learner
+from proto_brax.algorithms.regularizer import alpha_schedule
+from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.data.dataset import OfflineDataset
+from proto_brax.data.replay import ReplayBuffer, replay_init, replay_insert, replay_sample
+from proto_brax.networks import make_networks
+
+ALGORITHMS = {"sac": sac, "td3": td3}
+
+# Incremented each time a chunk function is traced (tests assert that chunks do not re-trace).
+TRACE_COUNT = {"chunk": 0}
+
+
+@struct.dataclass
+class TrainState:
+    learner: Learner
+    buffer: ReplayBuffer
+    env: envs.EnvState  # leading axis num_envs
+    key: jax.Array
+    step: jax.Array  # env steps taken (per env)
+
+
+@dataclasses.dataclass(frozen=True)
+class Finetune:
+    cfg: FinetuneConfig
+    init: Callable
+    chunk: Callable
+    finetune: Callable
+    evaluate: Callable
+
+
+def make_finetune(cfg: FinetuneConfig) -> Finetune:
+    env = envs.make_env(cfg.env, cfg.backend)
+    obs_size, act_size = env.observation_size, env.action_size
+    algo = ALGORITHMS[cfg.algo]
+    nets = make_networks(cfg.net, act_size, deterministic=cfg.algo == "td3")
+    horizon = cfg.horizon
+
+    def init(hp: HParams, key: jax.Array, pretrained: Pretrained | None, dataset: OfflineDataset | None):
+        if dataset is not None and dataset.observations.shape[-1] != obs_size:
+            raise ValueError(
+                f"Dataset observations have size {dataset.observations.shape[-1]} but env {cfg.env!r} has "
+                f"{obs_size}: use a dataset made for {cfg.env!r}."
+            )
+        k_learner, k_env, k_run = jax.random.split(key, 3)
+        learner = init_learner(k_learner, nets, cfg, hp, obs_size, act_size, pretrained)
+        env_state = jax.vmap(lambda k: envs.env_reset(env, k))(jax.random.split(k_env, cfg.num_envs))
+        return TrainState(
+            learner=learner,
+            buffer=replay_init(cfg.capacity, obs_size, act_size),
+            env=env_state,
+            key=k_run,
+            step=jnp.zeros((), jnp.int32),
+        )
+
+    def train_step(state: TrainState, t: jax.Array, hp: HParams, dataset):
+        key, k_act, k_env, k_update = jax.random.split(state.key, 4)
+        obs = state.env.brax_state.obs
+        action = algo.act(nets, state.learner.actor, obs, k_act, hp, deterministic=False)
+        env_keys = jax.random.split(k_env, cfg.num_envs)
+        env_state, transition, done, ret = jax.vmap(lambda s, a, k: envs.env_step(env, horizon, s, a, k))(
+            state.env, action, env_keys
+        )
+        buffer = replay_insert(state.buffer, transition)
+        samples = (t + 1) * cfg.num_envs
+        alpha = alpha_schedule(hp.alpha0, hp.eta, hp.anneal_horizon, hp.alpha_min, samples.astype(jnp.float32))
+
+        def learn(learner):
+            def one(learner, x):
+                i, k = x
+                k_sample, k_upd = jax.random.split(k)
+                batch = replay_sample(k_sample, buffer, dataset, cfg.batch_size, cfg.sampling, cfg.offline_fraction)
+                return algo.update(learner, batch, k_upd, alpha, hp, nets, cfg, t * cfg.updates_per_step + i)
+
+            xs = (jnp.arange(cfg.updates_per_step), jax.random.split(k_update, cfg.updates_per_step))
+            learner, m = lax.scan(one, learner, xs)
+            return learner, jax.tree.map(jnp.mean, m), jnp.ones(())
+
+        def wait(learner):
+            metrics = jax.eval_shape(learn, learner)[1]
+            return learner, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), metrics), jnp.zeros(())
+
+        learner, metrics, updated = lax.cond(samples >= cfg.learning_starts, learn, wait, state.learner)
+        stats = {
+            **metrics,
+            "alpha": alpha,
+            "episodes": jnp.sum(done),
+            "episode_return_sum": jnp.sum(jnp.where(done > 0, ret, 0.0)),
+        }
+        new = TrainState(learner=learner, buffer=buffer, env=env_state, key=key, step=state.step + 1)
+        return new, (stats, updated)
+
+    def evaluate(actor, key: jax.Array) -> jax.Array:
+        """Returns of ``eval_episodes`` deterministic episodes run side by side (each to termination or horizon)."""
+        s = jax.vmap(env.reset)(jax.random.split(key, cfg.eval_episodes))
+
+        def body(carry, _):
+            s, ret, alive = carry
+            a = algo.act(nets, actor, s.obs, key, None, deterministic=True)
+            s = jax.vmap(env.step)(s, a)
+            ret = ret + jnp.where(alive, s.reward, 0.0)  # where, not multiply: a finished episode may hold NaNs
+            return (s, ret, jnp.logical_and(alive, s.done == 0)), None
+
+        init = (s, jnp.zeros(cfg.eval_episodes), jnp.ones(cfg.eval_episodes, bool))
+        (_, ret, _), _ = lax.scan(body, init, None, length=horizon)
+        return ret
+
+    def chunk(state: TrainState, hp: HParams, dataset, start: jax.Array):
+        TRACE_COUNT["chunk"] += 1
+        ts = start + jnp.arange(cfg.eval_every)
+        state, (stats, updated) = lax.scan(lambda s, t: train_step(s, t, hp, dataset), state, ts)
+        n_upd = jnp.maximum(jnp.sum(updated), 1.0)
+        metrics = {k: jnp.sum(v) / n_upd for k, v in stats.items() if k not in ("alpha", "episodes",
+                                                                                 "episode_return_sum")}
+        episodes = jnp.sum(stats["episodes"])
+        key, k_eval, k_batch, k_dev1, k_dev2 = jax.random.split(state.key, 5)
+        returns = evaluate(state.learner.actor, k_eval)
+        # Policy drift diagnostics on a fresh training batch: KL(π‖π̄) and KL(π‖π₀) (TD3: mean squared distance).
+        batch = replay_sample(k_batch, state.buffer, dataset, cfg.batch_size, cfg.sampling, cfg.offline_fraction)
+        lrn = state.learner
+        metrics.update(
+            step=(start + cfg.eval_every) * cfg.num_envs,
+            alpha=stats["alpha"][-1],
+            updates=jnp.sum(updated) * cfg.updates_per_step,
+            train_episodes=episodes,
+            train_return=jnp.where(episodes > 0, jnp.sum(stats["episode_return_sum"]) / jnp.maximum(episodes, 1),
+                                   jnp.nan),
+            eval_return=jnp.mean(returns),
+            eval_returns=returns,
+            dev_pibar=algo.deviation(nets, lrn.actor, lrn.pibar, batch.observations, k_dev1),
+            dev_pi0=algo.deviation(nets, lrn.actor, lrn.pi0, batch.observations, k_dev2),
+        )
+        return state.replace(key=key), metrics
+
+    def finetune(hp: HParams, key: jax.Array, pretrained: Pretrained | None, dataset: OfflineDataset | None):
+        state = init(hp, key, pretrained, dataset)
+        starts = jnp.arange(cfg.num_chunks) * cfg.eval_every
+        return lax.scan(lambda s, start: chunk(s, hp, dataset, start), state, starts)
+
+    return Finetune(cfg=cfg, init=init, chunk=chunk, finetune=finetune, evaluate=evaluate)

@@ -1,0 +1,102 @@
+"""Independent NumPy re-implementations of the networks and losses, for equality tests (float64)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _np(tree):
+    import jax
+
+    return jax.tree.map(lambda x: np.asarray(x, np.float64), tree)
+
+
+def mlp(p: dict, x: np.ndarray, layer_norm: bool) -> np.ndarray:
+    """flax MLP: Dense_i (+ LayerNorm_i) + relu for hidden layers, then the last Dense."""
+    dense = sorted((k for k in p if k.startswith("Dense_")), key=lambda k: int(k.split("_")[1]))
+    for i, name in enumerate(dense):
+        x = x @ p[name]["kernel"] + p[name]["bias"]
+        if i < len(dense) - 1:
+            if layer_norm:
+                ln = p[f"LayerNorm_{i}"]
+                mu = x.mean(-1, keepdims=True)
+                var = x.var(-1, keepdims=True)
+                x = (x - mu) / np.sqrt(var + 1e-6) * ln["scale"] + ln["bias"]
+            x = np.maximum(x, 0.0)
+    return x
+
+
+def gaussian_actor(params, obs, log_std_min=-5.0, log_std_max=2.0):
+    out = mlp(_np(params)["params"]["MLP_0"], obs, False)
+    mean, raw = np.split(out, 2, axis=-1)
+    log_std = log_std_min + 0.5 * (log_std_max - log_std_min) * (np.tanh(raw) + 1.0)
+    return mean, log_std
+
+
+def det_actor(params, obs):
+    return np.tanh(mlp(_np(params)["params"]["MLP_0"], obs, False))
+
+
+def critics(params, obs, act, layer_norm=True):
+    p = _np(params)["params"]["VmapCritic_0"]["MLP_0"]
+    num = next(iter(p.values()))["kernel"].shape[0]
+    x = np.concatenate([obs, act], -1)
+    return np.stack([mlp({k: {kk: vv[i] for kk, vv in v.items()} for k, v in p.items()}, x, layer_norm)[..., 0]
+                     for i in range(num)])
+
+
+def normal_logpdf(u, mean, log_std):
+    return np.sum(-0.5 * ((u - mean) / np.exp(log_std)) ** 2 - log_std - 0.5 * np.log(2 * np.pi), -1)
+
+
+def tanh_gaussian_logp(u, mean, log_std):
+    # log π(tanh u) = log N(u) − Σ log(1 − tanh(u)²): the textbook form (fine in float64 for moderate u)
+    return normal_logpdf(u, mean, log_std) - np.sum(np.log(1.0 - np.tanh(u) ** 2), -1)
+
+
+def sac_critic_loss(actor, critic, critic_target, pibar, log_alpha_sac, batch, eps, alpha, gamma, backup, clip):
+    s, a, r, s2, d = (np.asarray(getattr(batch, f), np.float64) for f in
+                      ("observations", "actions", "rewards", "next_observations", "terminals"))
+    mean, log_std = gaussian_actor(actor, s2)
+    u = mean + np.exp(log_std) * eps
+    logp = tanh_gaussian_logp(u, mean, log_std)
+    q_next = critics(critic_target, s2, np.tanh(u))
+    q_next = q_next.min(0) if clip else q_next.mean(0)
+    v = q_next - np.exp(log_alpha_sac) * logp
+    if backup:
+        mb, lb = gaussian_actor(pibar, s2)
+        v = v - alpha * (logp - tanh_gaussian_logp(u, mb, lb))
+    y = r + gamma * (1 - d) * v
+    q = critics(critic, s, a)
+    return np.mean((q - y[None]) ** 2)
+
+
+def sac_actor_loss(actor, critic, pibar, log_alpha_sac, obs, eps, alpha, clip):
+    s = np.asarray(obs, np.float64)
+    mean, log_std = gaussian_actor(actor, s)
+    u = mean + np.exp(log_std) * eps
+    logp = tanh_gaussian_logp(u, mean, log_std)
+    mb, lb = gaussian_actor(pibar, s)
+    kl = logp - tanh_gaussian_logp(u, mb, lb)
+    q = critics(critic, s, np.tanh(u))
+    q = q.min(0) if clip else q.mean(0)
+    return np.mean(np.exp(log_alpha_sac) * logp + alpha * kl - q)
+
+
+def td3_critic_loss(actor_target, critic, critic_target, pibar, batch, noise, alpha, gamma, noise_clip, backup):
+    s, a, r, s2, d = (np.asarray(getattr(batch, f), np.float64) for f in
+                      ("observations", "actions", "rewards", "next_observations", "terminals"))
+    a2 = np.clip(det_actor(actor_target, s2) + np.clip(noise, -noise_clip, noise_clip), -1, 1)
+    v = critics(critic_target, s2, a2).min(0)
+    if backup:
+        v = v - alpha * np.sum((a2 - det_actor(pibar, s2)) ** 2, -1)
+    y = r + gamma * (1 - d) * v
+    return np.mean((critics(critic, s, a) - y[None]) ** 2)
+
+
+def td3_actor_loss(actor, critic, pibar, obs, alpha, beta):
+    s = np.asarray(obs, np.float64)
+    a = det_actor(actor, s)
+    q = critics(critic, s, a)[0]
+    lam = beta / np.mean(np.abs(q))
+    return np.mean(-lam * q + alpha * np.sum((a - det_actor(pibar, s)) ** 2, -1))

@@ -1,0 +1,268 @@
+"""The online engine: env stepping, replay, vmapped grids vs single runs, determinism, no re-trace, learning."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from proto_brax import envs
+from proto_brax.algorithms.bc import bc_update
+from proto_brax.algorithms.learner import Pretrained, adam
+from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.data.dataset import Transition
+from proto_brax.data.generate import collect, uniform_policy
+from proto_brax.data.replay import replay_init, replay_insert, replay_sample
+from proto_brax.networks import NetworkConfig, make_networks
+from proto_brax.train import online
+from proto_brax.train.grid import make_grid, run_grid
+
+TINY = FinetuneConfig(
+    env="point", net=NetworkConfig(hidden=(32, 32)), steps=1200, eval_every=400, eval_episodes=4,
+    batch_size=32, learning_starts=64, sampling="online",
+)
+SCRATCH = dict(alpha0=0.0, alpha_sac_init=1.0, target_entropy_scale=-1.0, lr_actor=1e-3, lr_critic=1e-3)
+
+
+@functools.lru_cache(maxsize=None)
+def finetune_fn(cfg: FinetuneConfig):
+    """One compiled single-run program per config, shared by every test."""
+    ft = online.make_finetune(cfg)
+    return ft, jax.jit(ft.finetune)
+
+
+def expert_policy(obs, key):
+    del key
+    return jnp.clip(-obs[:, :2] / 0.2, -1.0, 1.0)
+
+
+@functools.lru_cache(maxsize=None)
+def point_dataset(noise: float = 0.3, num_envs: int = 20, steps: int = 100) -> Transition:
+    env = envs.make_env("point")
+    pol = lambda obs, key: jnp.clip(expert_policy(obs, key) + noise * jax.random.normal(key, (obs.shape[0], 2)),  # noqa: E731
+                                    -1, 1)
+    tr, _, _ = jax.jit(lambda k: collect(env, 50, pol, k, num_envs, steps))(jax.random.PRNGKey(42))
+    return tr
+
+
+# ----------------------------------------------------------------------------------------------------- env stepping
+
+
+def test_time_limit_truncation_keeps_true_next_obs_and_bootstraps():
+    env = envs.make_env("point")
+    s = envs.env_reset(env, jax.random.PRNGKey(0))
+    a = jnp.array([0.1, -0.1])
+    for i in range(3):
+        prev = s
+        s, tr, done, ret = envs.env_step(env, 3, s, a, jax.random.PRNGKey(i + 1))
+    expected_next = env.step(prev.brax_state, a).obs
+    np.testing.assert_allclose(tr.next_observations, expected_next)  # the true successor, not the reset obs
+    assert float(tr.timeouts) == 1.0 and float(tr.terminals) == 0.0  # bootstrapping continues through a timeout
+    assert float(done) == 1.0 and int(s.t) == 0 and float(s.episode_return) == 0.0
+    assert not np.allclose(s.brax_state.obs, expected_next)  # auto-reset to a fresh initial state
+
+
+def test_true_termination_sets_terminal():
+    env = envs.make_env("point")
+    s = envs.env_reset(env, jax.random.PRNGKey(0))
+    for i in range(30):
+        s, tr, done, _ = envs.env_step(env, 1000, s, jnp.ones(2), jax.random.PRNGKey(i))
+        if float(done):
+            break
+    assert float(tr.terminals) == 1.0 and float(tr.timeouts) == 0.0
+
+
+def test_point_references():
+    """The registered reference returns of the point task are what the two reference policies score."""
+    env = envs.make_env("point")
+    spec = envs.get_spec("point")
+    for pol, ref in ((uniform_policy(2), spec.ref_random), (expert_policy, spec.ref_expert)):
+        _, ret, valid = jax.jit(lambda k: collect(env, 50, pol, k, 100, 50))(jax.random.PRNGKey(123))
+        assert abs(float(np.asarray(ret)[np.asarray(valid)].mean()) - ref) < 0.05
+    np.testing.assert_allclose(envs.normalized_score("point", [spec.ref_random, spec.ref_expert]), [0.0, 100.0])
+
+
+# ----------------------------------------------------------------------------------------------------------- replay
+
+
+def _rows(n, value, obs=2, act=1):
+    return Transition(
+        observations=jnp.full((n, obs), value), actions=jnp.zeros((n, act)), rewards=jnp.full((n,), value),
+        next_observations=jnp.zeros((n, obs)), terminals=jnp.zeros(n), timeouts=jnp.zeros(n),
+    )
+
+
+def test_replay_insert_wraps_around():
+    buf = replay_init(5, 2, 1)
+    buf = replay_insert(buf, _rows(3, 1.0))
+    buf = replay_insert(buf, _rows(4, 2.0))
+    assert int(buf.size) == 5 and int(buf.position) == 2
+    np.testing.assert_array_equal(buf.data.rewards, [2, 2, 1, 2, 2])
+
+
+def test_symmetric_sampling_takes_exact_offline_share():
+    buf = replay_insert(replay_init(10, 2, 1), _rows(4, 0.0))
+    data = _rows(50, 1.0)
+    batch = replay_sample(jax.random.PRNGKey(0), buf, data, 16, "symmetric", 0.25)
+    np.testing.assert_array_equal(batch.rewards, [1.0] * 4 + [0.0] * 12)
+
+
+def test_union_sampling_is_uniform_over_both_sources():
+    buf = replay_insert(replay_init(100, 2, 1), _rows(30, 0.0))
+    data = _rows(90, 1.0)
+    batch = replay_sample(jax.random.PRNGKey(0), buf, data, 20_000, "union")
+    share = float(batch.rewards.mean())  # expected 90 / 120 = 0.75; binomial std ≈ 0.003
+    assert abs(share - 0.75) < 0.015
+    online_only = replay_sample(jax.random.PRNGKey(1), buf, data, 1000, "online")
+    assert float(online_only.rewards.max()) == 0.0  # never reads the dataset nor the empty rows
+
+
+# ---------------------------------------------------------------------------------------------------- grids and runs
+
+
+def test_vmapped_grid_run_equals_single_run():
+    """Run i of a sharded, vmapped grid equals the same run alone (atol 1e-4 on metrics, after 1200 steps)."""
+    ft, single = finetune_fn(TINY)
+    grid = make_grid({"tau": [0.0, 0.01], "lr_actor": [1e-3]}, seeds=[0, 1], base={**SCRATCH, "alpha0": 0.5})
+    state, metrics = run_grid(ft, grid)
+    assert metrics["eval_return"].shape == (TINY.num_chunks, 4)
+    for i in (0, 3):
+        point = grid.points[i]
+        hp = HParams.create(**{k: v for k, v in point.items() if k != "seed"})
+        _, m = single(hp, jax.random.PRNGKey(point["seed"]), None, None)
+        for k in ("eval_return", "critic_loss", "actor_loss", "dev_pi0", "q_mean"):
+            np.testing.assert_allclose(metrics[k][:, i], np.asarray(m[k]), rtol=1e-4, atol=1e-4, err_msg=k)
+
+
+def test_same_seed_same_result_and_no_retrace():
+    ft, single = finetune_fn(TINY)
+    hp = HParams.create(**SCRATCH)
+    chunk = jax.jit(ft.chunk)
+    before = online.TRACE_COUNT["chunk"]
+    results = []
+    for _ in range(2):
+        state = ft.init(hp, jax.random.PRNGKey(3), None, None)
+        for c in range(TINY.num_chunks):
+            state, m = chunk(state, hp, None, jnp.asarray(c * TINY.eval_every, jnp.int32))
+        results.append(jax.device_get((state.learner.actor, m)))
+    assert online.TRACE_COUNT["chunk"] - before == 1  # 3 chunk calls, one trace
+    jax.tree.map(np.testing.assert_array_equal, results[0], results[1])
+    other = jax.device_get(single(hp, jax.random.PRNGKey(4), None, None)[1]["eval_return"])
+    assert not np.array_equal(other, np.asarray(jax.device_get(single(hp, jax.random.PRNGKey(3), None, None)[1][
+        "eval_return"])))
+
+
+def test_frozen_keeps_pibar_equal_to_pi0_bit_exactly():
+    cfg = dataclasses.replace(TINY, sampling="symmetric")
+    ft, single = finetune_fn(cfg)
+    hp = HParams.create(**{**SCRATCH, "tau": 0.0, "alpha0": 1.0})
+    state, _ = single(hp, jax.random.PRNGKey(0), None, point_dataset())
+    jax.tree.map(np.testing.assert_array_equal, state.learner.pibar, state.learner.pi0)
+    assert not np.array_equal(*jax.tree.leaves((state.learner.actor, state.learner.pi0))[:2])  # the actor moved
+
+
+def test_td3_grid_runs_and_is_finite():
+    cfg = dataclasses.replace(TINY, algo="td3", steps=400)
+    ft, _ = finetune_fn(cfg)
+    grid = make_grid({"alpha0": [0.0, 1.0]}, seeds=[0], base={"lr_actor": 1e-3, "lr_critic": 1e-3})
+    _, metrics = run_grid(ft, grid)
+    assert np.all(np.isfinite(metrics["critic_loss"])) and np.all(np.isfinite(metrics["eval_return"]))
+
+
+# -------------------------------------------------------------------------------------------------------- learning
+
+
+def test_sac_from_scratch_learns_point():
+    """SAC (α₀ = 0, random init) goes from the random policy's score (≈ 0 normalized) to ≥ 80 normalized."""
+    ft, single = finetune_fn(TINY)
+    _, m = single(HParams.create(**SCRATCH), jax.random.PRNGKey(0), None, None)
+    score = np.asarray(envs.normalized_score("point", m["eval_return"]))
+    assert score[-1] >= 80.0, score
+
+
+def bc_pretrain(dataset: Transition, hidden=(32, 32), steps=1500, seed=0):
+    nets = make_networks(NetworkConfig(hidden=hidden), 2)
+    actor = nets.actor.init(jax.random.PRNGKey(seed), jnp.zeros((1, 4)))
+    opt = adam(1e-3).init(actor)
+
+    def body(carry, key):
+        actor, opt = carry
+        idx = jax.random.randint(key, (64,), 0, dataset.rewards.shape[0])
+        actor, opt, info = bc_update(actor, opt, nets, jax.tree.map(lambda x: x[idx], dataset))
+        return (actor, opt), info["bc_loss"]
+
+    (actor, _), losses = jax.lax.scan(body, (actor, opt), jax.random.split(jax.random.PRNGKey(seed), steps))
+    return actor, losses
+
+
+def test_proto_from_bc_pretrained_policy_starts_high_and_stays_high():
+    """BC on noisy expert data gives a good π₀; PROTO finetuning from it stays ≥ 80 normalized from the first eval."""
+    data = point_dataset()
+    actor, losses = jax.jit(bc_pretrain)(data)
+    losses = np.asarray(losses)
+    assert losses[-100:].mean() < losses[:100].mean() - 1.0  # BC learned
+    cfg = dataclasses.replace(TINY, sampling="symmetric")
+    ft, single = finetune_fn(cfg)
+    pre = Pretrained(actor=actor)
+    pi0_return = float(jnp.mean(jax.jit(ft.evaluate)(actor, jax.random.PRNGKey(9))))
+    assert envs.normalized_score("point", pi0_return) >= 80.0
+    hp = HParams.create(**{**SCRATCH, "alpha0": 1.0, "alpha_sac_init": 0.01, "target_entropy_scale": -0.5})
+    _, m = single(hp, jax.random.PRNGKey(0), pre, data)
+    score = np.asarray(envs.normalized_score("point", m["eval_return"]))
+    assert score.min() >= 80.0, score
+
+
+# ------------------------------------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(env="hoppr"), "Unknown env 'hoppr'"),
+        (dict(backend="warp"), "Unknown backend 'warp'"),
+        (dict(steps=0), "steps must be >= 1"),
+        (dict(steps=1000, eval_every=300), "multiple of eval_every"),
+        (dict(algo="ppo"), "Unknown algo"),
+    ],
+)
+def test_bad_config_fails_with_a_clear_message(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        FinetuneConfig(**kwargs)
+
+
+@pytest.mark.parametrize(
+    "axes, seeds, match",
+    [
+        ({"tau": [1.5]}, [0], "tau must lie in"),
+        ({"tau": [-0.1]}, [0], "tau must lie in"),
+        ({"eta": [-1.0]}, [0], "eta must be >= 0"),
+        ({"alpha0": [-2.0]}, [0], "alpha0 must be >= 0"),
+        ({"tau": []}, [0], "grid is empty"),
+        ({"tau": [0.1]}, [], "grid is empty"),
+        ({"tau": [0.1, 0.1]}, [0], "Duplicate values"),
+        ({"taus": [0.1]}, [0], "Unknown hyper-parameter"),
+    ],
+)
+def test_bad_grid_fails_before_compiling(axes, seeds, match):
+    with pytest.raises(ValueError, match=match):
+        make_grid(axes, seeds)
+
+
+def test_dataset_of_wrong_env_is_rejected():
+    ft, _ = finetune_fn(TINY)
+    bad = _rows(10, 0.0, obs=11, act=3)
+    with pytest.raises(ValueError, match="observations have size 11"):
+        ft.init(HParams.create(), jax.random.PRNGKey(0), None, bad)
+
+
+def test_optax_injected_learning_rate_is_traced():
+    """Learning rates live in the optimizer state, so two grid points with different rates share one program."""
+    st = adam(jnp.asarray(0.5)).init({"w": jnp.ones(2)})
+    assert float(st.hyperparams["learning_rate"]) == 0.5
+    upd, _ = adam(0.0).update({"w": jnp.ones(2)}, st, {"w": jnp.ones(2)})
+    np.testing.assert_allclose(optax.apply_updates({"w": jnp.ones(2)}, upd)["w"], 0.5, atol=1e-3)

@@ -1,0 +1,139 @@
+"""PROTO losses against an independent NumPy computation on fixed tiny parameters (paper Eq. 3–4, TD3 appendix)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import reference as ref
+from proto_brax.algorithms import regularizer, sac, td3
+from proto_brax.algorithms.learner import init_learner
+from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.data.dataset import Transition
+from proto_brax.networks import NetworkConfig, make_networks, tanh_gaussian_log_prob
+
+OBS, ACT, B = 3, 2, 5
+NET = NetworkConfig(hidden=(8, 8), critic_layer_norm=True)
+
+
+def _perturb(tree, key, scale=0.3):
+    leaves, treedef = jax.tree.flatten(tree)
+    keys = jax.random.split(key, len(leaves))
+    return jax.tree.unflatten(treedef, [x + scale * jax.random.normal(k, x.shape) for x, k in zip(leaves, keys)])
+
+
+def _setup(algo: str, **cfg_kw):
+    cfg = FinetuneConfig(env="point", algo=algo, net=NET, **cfg_kw)
+    nets = make_networks(NET, ACT, deterministic=algo == "td3")
+    hp = HParams.create(alpha_sac_init=0.2, gamma=0.9)
+    lrn = init_learner(jax.random.PRNGKey(0), nets, cfg, hp, OBS, ACT, None)
+    # Make every network distinct so that a swapped argument cannot pass.
+    lrn = lrn.replace(
+        critic_target=_perturb(lrn.critic, jax.random.PRNGKey(1)),
+        pibar=_perturb(lrn.actor, jax.random.PRNGKey(2)),
+        actor_target=None if lrn.actor_target is None else _perturb(lrn.actor, jax.random.PRNGKey(3)),
+    )
+    k = jax.random.split(jax.random.PRNGKey(4), 5)
+    batch = Transition(
+        observations=jax.random.normal(k[0], (B, OBS)),
+        actions=jax.random.uniform(k[1], (B, ACT), minval=-0.9, maxval=0.9),
+        rewards=jax.random.normal(k[2], (B,)),
+        next_observations=jax.random.normal(k[3], (B, OBS)),
+        terminals=jnp.array([0.0, 1.0, 0.0, 0.0, 1.0]),
+        timeouts=jnp.zeros(B),
+    )
+    return cfg, nets, hp, lrn, batch
+
+
+@pytest.mark.parametrize("backup", [True, False])
+@pytest.mark.parametrize("clip", [True, False])
+def test_sac_critic_loss_matches_numpy(backup, clip):
+    cfg, nets, hp, lrn, batch = _setup("sac", value_reg_backup=backup, clipped_double_q=clip)
+    key, alpha = jax.random.PRNGKey(7), 1.7
+    loss, _ = sac.critic_loss(lrn.critic, lrn, batch, key, alpha, hp, nets, cfg)
+    eps = np.asarray(jax.random.normal(key, (B, ACT)), np.float64)
+    expected = ref.sac_critic_loss(lrn.actor, lrn.critic, lrn.critic_target, lrn.pibar, float(lrn.log_alpha_sac),
+                                   batch, eps, alpha, 0.9, backup, clip)
+    np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
+
+
+@pytest.mark.parametrize("clip", [True, False])
+def test_sac_actor_loss_matches_numpy(clip):
+    cfg, nets, hp, lrn, batch = _setup("sac", clipped_double_q=clip)
+    key, alpha = jax.random.PRNGKey(8), 0.6
+    loss, _ = sac.actor_loss(lrn.actor, lrn.critic, lrn, batch.observations, key, alpha, nets, cfg)
+    eps = np.asarray(jax.random.normal(key, (B, ACT)), np.float64)
+    expected = ref.sac_actor_loss(lrn.actor, lrn.critic, lrn.pibar, float(lrn.log_alpha_sac), batch.observations,
+                                  eps, alpha, clip)
+    np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
+
+
+def test_sac_alpha_zero_is_plain_sac():
+    """α = 0: the PROTO terms vanish exactly, whatever π̄ is and whether the backup switch is on."""
+    cfg, nets, hp, lrn, batch = _setup("sac", value_reg_backup=True)
+    cfg_plain = dataclasses.replace(cfg, value_reg_backup=False)
+    key = jax.random.PRNGKey(9)
+    with_term = sac.critic_loss(lrn.critic, lrn, batch, key, 0.0, hp, nets, cfg)[0]
+    plain = sac.critic_loss(lrn.critic, lrn, batch, key, 0.0, hp, nets, cfg_plain)[0]
+    assert float(with_term) == float(plain)
+    a_loss = sac.actor_loss(lrn.actor, lrn.critic, lrn, batch.observations, key, 0.0, nets, cfg)[0]
+    other_pibar = lrn.replace(pibar=_perturb(lrn.pibar, jax.random.PRNGKey(5), 1.0))
+    a_loss2 = sac.actor_loss(lrn.actor, lrn.critic, other_pibar, batch.observations, key, 0.0, nets, cfg)[0]
+    assert float(a_loss) == float(a_loss2)
+
+
+@pytest.mark.parametrize("backup", [True, False])
+def test_td3_critic_loss_matches_numpy(backup):
+    cfg, nets, hp, lrn, batch = _setup("td3", value_reg_backup=backup)
+    key, alpha = jax.random.PRNGKey(10), 1.3
+    loss, _ = td3.critic_loss(lrn.critic, lrn, batch, key, alpha, hp, nets, cfg)
+    noise = 0.2 * np.asarray(jax.random.normal(key, (B, ACT)), np.float64)
+    expected = ref.td3_critic_loss(lrn.actor_target, lrn.critic, lrn.critic_target, lrn.pibar, batch, noise, alpha,
+                                   0.9, 0.5, backup)
+    np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
+
+
+@pytest.mark.parametrize("alpha", [0.0, 2.5])
+def test_td3_actor_loss_matches_numpy(alpha):
+    cfg, nets, hp, lrn, batch = _setup("td3")
+    loss, _ = td3.actor_loss(lrn.actor, lrn.critic, lrn, batch.observations, alpha, hp, nets)
+    expected = ref.td3_actor_loss(lrn.actor, lrn.critic, lrn.pibar, batch.observations, alpha, 4.0)
+    np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
+
+
+def test_alpha_schedule_values():
+    f = lambda t: float(regularizer.alpha_schedule(2.0, 0.9, 1e6, 0.0, t))  # noqa: E731
+    assert f(0.0) == 2.0
+    np.testing.assert_allclose(f(5e5), 2.0 * (1 - 0.45), rtol=1e-6)
+    np.testing.assert_allclose(f(1e6), 0.2, rtol=1e-5)
+    assert f(1e6 / 0.9 + 1) == 0.0  # reaches 0 at N/η and stays there
+    assert f(3e6) == 0.0
+    assert float(regularizer.alpha_schedule(2.0, 0.9, 1e6, 0.5, 1e6)) == 0.5  # floor α_min
+
+
+def test_polyak_tau_zero_is_bit_exact():
+    old = {"w": jnp.array([0.1, -3.0, 7e-8])}
+    new = {"w": jnp.array([5.0, 2.0, -1.0])}
+    np.testing.assert_array_equal(regularizer.polyak(new, old, 0.0)["w"], old["w"])
+    np.testing.assert_allclose(regularizer.polyak(new, old, 0.25)["w"], 0.25 * new["w"] + 0.75 * old["w"], rtol=1e-6)
+
+
+def test_kl_penalty_equals_tanh_gaussian_log_ratio():
+    """The Jacobian-free form equals log π(a) − log π̄(a) computed with the full tanh-Gaussian densities."""
+    k = jax.random.split(jax.random.PRNGKey(0), 5)
+    m, ls, mb, lb = (jax.random.normal(kk, (4, 3)) * 0.5 for kk in k[:4])
+    u = m + jnp.exp(ls) * jax.random.normal(k[4], (4, 3))
+    a = jnp.tanh(u)
+    direct = tanh_gaussian_log_prob(a, m, ls) - tanh_gaussian_log_prob(a, mb, lb)
+    np.testing.assert_allclose(regularizer.kl_penalty(u, m, ls, mb, lb), direct, rtol=1e-3, atol=1e-3)
+
+
+def test_tanh_log_prob_is_stable_for_large_u():
+    from proto_brax.networks import sample_tanh_gaussian
+
+    _, _, logp = sample_tanh_gaussian(jax.random.PRNGKey(0), jnp.full((1, 2), 30.0), jnp.full((1, 2), -5.0))
+    assert np.all(np.isfinite(np.asarray(logp)))
