@@ -97,6 +97,7 @@ class FinetuneConfig:
     offline_fraction: float = 0.5  # share of each batch drawn from the offline data ("symmetric" mode)
     learning_starts: int = 1_000  # env steps collected before the first update
     updates_per_step: int = 1  # gradient steps per env step (UTD ratio)
+    regularizer: bool = True  # False skips every π̄ computation: the same results as α₀ = 0, only cheaper
     value_reg_backup: bool = True  # the PROTO penalty inside the critic target (paper: off for AntMaze and Adroit)
     clipped_double_q: bool = True  # min over the critic ensemble (else mean; paper: off for AntMaze)
     policy_delay: int = 2  # TD3: actor and targets update every policy_delay critic updates

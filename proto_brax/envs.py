@@ -57,7 +57,7 @@ class PointReach(Env):
     The agent starts uniformly in [-1, 1]^2 and moves by ``0.2 * action`` per step; the reward is
     ``1 - |x'|`` (highest at the origin). Leaving the box |x|_inf > 1.9 terminates the episode, so the task has true
     terminals as well as time-limit truncations. A good policy walks to the origin in ~5 steps and stays:
-    return ≈ 49 of at most 50; the uniform random policy scores ≈ −0.5.
+    return ≈ 49 of at most 50; the uniform random policy scores ≈ 0.34.
     """
 
     def __init__(self, backend: str = "generalized"):
@@ -98,7 +98,7 @@ REGISTRY: dict[str, EnvSpec] = {
     "ant": EnvSpec("ant", "generalized"),
     # Point references: mean return over 100 episodes (seed 123) of the uniform policy and of the analytic controller
     # a = clip(-x / 0.2, -1, 1); re-measured by tests/test_engine.py::test_point_references.
-    "point": EnvSpec("point", "generalized", episode_length=50, ref_random=-0.5, ref_expert=49.0),
+    "point": EnvSpec("point", "generalized", episode_length=50, ref_random=0.34, ref_expert=49.0),
 }
 
 

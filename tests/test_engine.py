@@ -16,10 +16,11 @@ from proto_brax.algorithms.bc import bc_update
 from proto_brax.algorithms.learner import Pretrained, adam
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
-from proto_brax.data.generate import collect, uniform_policy
+from proto_brax.data.generate import collect, flatten_env_major, uniform_policy
 from proto_brax.data.replay import replay_init, replay_insert, replay_sample
 from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train import online
+from proto_brax.train.evaluate import run_episodes
 from proto_brax.train.grid import make_grid, run_grid
 
 TINY = FinetuneConfig(
@@ -46,8 +47,8 @@ def point_dataset(noise: float = 0.3, num_envs: int = 20, steps: int = 100) -> T
     env = envs.make_env("point")
     pol = lambda obs, key: jnp.clip(expert_policy(obs, key) + noise * jax.random.normal(key, (obs.shape[0], 2)),  # noqa: E731
                                     -1, 1)
-    tr, _, _ = jax.jit(lambda k: collect(env, 50, pol, k, num_envs, steps))(jax.random.PRNGKey(42))
-    return tr
+    tr, _, _, _ = jax.jit(lambda k: collect(env, 50, pol, k, num_envs, steps))(jax.random.PRNGKey(42))
+    return flatten_env_major(tr)
 
 
 # ----------------------------------------------------------------------------------------------------- env stepping
@@ -82,8 +83,8 @@ def test_point_references():
     env = envs.make_env("point")
     spec = envs.get_spec("point")
     for pol, ref in ((uniform_policy(2), spec.ref_random), (expert_policy, spec.ref_expert)):
-        _, ret, valid = jax.jit(lambda k: collect(env, 50, pol, k, 100, 50))(jax.random.PRNGKey(123))
-        assert abs(float(np.asarray(ret)[np.asarray(valid)].mean()) - ref) < 0.05
+        ret = jax.jit(lambda k: run_episodes(env, 50, pol, k, 100))(jax.random.PRNGKey(123))
+        assert abs(float(ret.mean()) - ref) < 0.05
     np.testing.assert_allclose(envs.normalized_score("point", [spec.ref_random, spec.ref_expert]), [0.0, 100.0])
 
 
@@ -266,3 +267,15 @@ def test_optax_injected_learning_rate_is_traced():
     assert float(st.hyperparams["learning_rate"]) == 0.5
     upd, _ = adam(0.0).update({"w": jnp.ones(2)}, st, {"w": jnp.ones(2)})
     np.testing.assert_allclose(optax.apply_updates({"w": jnp.ones(2)}, upd)["w"], 0.5, atol=1e-3)
+
+
+def test_regularizer_off_equals_alpha0_zero():
+    """The static switch that skips π̄ work changes cost, not results: it equals α₀ = 0 with the term on."""
+    ft_on, on = finetune_fn(TINY)
+    ft_off, off = finetune_fn(dataclasses.replace(TINY, regularizer=False))
+    hp = HParams.create(**SCRATCH)
+    s_on, m_on = on(hp, jax.random.PRNGKey(5), None, None)
+    s_off, m_off = off(hp, jax.random.PRNGKey(5), None, None)
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6), s_on.learner.actor,
+                 s_off.learner.actor)
+    np.testing.assert_allclose(m_on["eval_return"], m_off["eval_return"], rtol=1e-5)

@@ -36,7 +36,7 @@ def critic_loss(
     a_next, u_next, logp_next = sample_tanh_gaussian(key, mean, log_std)
     q_next = reduce_q(nets.critic.apply(learner.critic_target, batch.next_observations, a_next), cfg.clipped_double_q)
     v_next = q_next - jnp.exp(learner.log_alpha_sac) * logp_next
-    if cfg.value_reg_backup:
+    if cfg.regularizer and cfg.value_reg_backup:
         mean_bar, log_std_bar = nets.actor.apply(learner.pibar, batch.next_observations)
         v_next = v_next - alpha * kl_penalty(u_next, mean, log_std, mean_bar, log_std_bar)
     target = lax.stop_gradient(batch.rewards + hp.gamma * (1.0 - batch.terminals) * v_next)
@@ -52,8 +52,11 @@ def actor_loss(
     """Actor loss with the PROTO penalty (Eq. 4): E[α_sac log π(a|s) + α (log π(a|s) − log π̄(a|s)) − Q(s, a)]."""
     mean, log_std = nets.actor.apply(actor, obs)
     a, u, logp = sample_tanh_gaussian(key, mean, log_std)
-    mean_bar, log_std_bar = nets.actor.apply(learner.pibar, obs)
-    kl = kl_penalty(u, mean, log_std, lax.stop_gradient(mean_bar), lax.stop_gradient(log_std_bar))
+    if cfg.regularizer:
+        mean_bar, log_std_bar = nets.actor.apply(learner.pibar, obs)
+        kl = kl_penalty(u, mean, log_std, lax.stop_gradient(mean_bar), lax.stop_gradient(log_std_bar))
+    else:
+        kl = jnp.zeros_like(logp)
     q = reduce_q(nets.critic.apply(critic, obs, a), cfg.clipped_double_q)
     alpha_sac = lax.stop_gradient(jnp.exp(learner.log_alpha_sac))
     loss = jnp.mean(alpha_sac * logp + alpha * kl - q)
@@ -90,7 +93,7 @@ def update(
         actor=actor,
         critic=critic,
         critic_target=polyak(critic, learner.critic_target, hp.target_tau),
-        pibar=polyak(actor, learner.pibar, hp.tau),
+        pibar=polyak(actor, learner.pibar, hp.tau) if cfg.regularizer else learner.pibar,
         actor_opt=actor_opt,
         critic_opt=critic_opt,
         log_alpha_sac=log_alpha_sac,

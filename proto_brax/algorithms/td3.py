@@ -28,7 +28,7 @@ def critic_loss(
     noise = jnp.clip(hp.policy_noise * jax.random.normal(key, a_targ.shape), -hp.noise_clip, hp.noise_clip)
     a_next = jnp.clip(a_targ + noise, -1.0, 1.0)
     v_next = reduce_q(nets.critic.apply(learner.critic_target, batch.next_observations, a_next), cfg.clipped_double_q)
-    if cfg.value_reg_backup:
+    if cfg.regularizer and cfg.value_reg_backup:
         v_next = v_next - alpha * mse_penalty(a_next, nets.actor.apply(learner.pibar, batch.next_observations))
     target = lax.stop_gradient(batch.rewards + hp.gamma * (1.0 - batch.terminals) * v_next)
     q = nets.critic.apply(critic, batch.observations, batch.actions)
@@ -36,12 +36,18 @@ def critic_loss(
     return loss, {"critic_loss": loss, "q_mean": jnp.mean(q), "q_max": jnp.max(q), "target_mean": jnp.mean(target)}
 
 
-def actor_loss(actor, critic, learner: Learner, obs: jax.Array, alpha: jax.Array, hp: HParams, nets: Networks):
+def actor_loss(
+    actor, critic, learner: Learner, obs: jax.Array, alpha: jax.Array, hp: HParams, nets: Networks,
+    regularizer: bool = True,
+):
     """E[−λ Q₁(s, π(s)) + α ‖π(s) − π̄(s)‖²], λ = β / mean|Q₁(s, π(s))| (stop-gradient)."""
     a = nets.actor.apply(actor, obs)
     q = nets.critic.apply(critic, obs, a)[0]
     lam = lax.stop_gradient(hp.beta / jnp.mean(jnp.abs(q)))
-    penalty = mse_penalty(a, lax.stop_gradient(nets.actor.apply(learner.pibar, obs)))
+    if regularizer:
+        penalty = mse_penalty(a, lax.stop_gradient(nets.actor.apply(learner.pibar, obs)))
+    else:
+        penalty = jnp.zeros_like(q)
     loss = jnp.mean(-lam * q + alpha * penalty)
     return loss, {"actor_loss": loss, "kl_pibar": jnp.mean(penalty), "lambda": lam}
 
@@ -63,7 +69,7 @@ def update(
 
     def actor_step(learner):
         (_, a_info), grads = jax.value_and_grad(actor_loss, has_aux=True)(
-            learner.actor, learner.critic, learner, batch.observations, alpha, hp, nets
+            learner.actor, learner.critic, learner, batch.observations, alpha, hp, nets, cfg.regularizer
         )
         actor, actor_opt = apply_grads(grads, learner.actor_opt, learner.actor)
         learner = learner.replace(
@@ -71,7 +77,7 @@ def update(
             actor_opt=actor_opt,
             actor_target=polyak(actor, learner.actor_target, hp.target_tau),
             critic_target=polyak(learner.critic, learner.critic_target, hp.target_tau),
-            pibar=polyak(actor, learner.pibar, hp.tau),
+            pibar=polyak(actor, learner.pibar, hp.tau) if cfg.regularizer else learner.pibar,
         )
         return learner, a_info
 

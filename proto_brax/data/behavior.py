@@ -21,6 +21,7 @@ import numpy as np
 
 from proto_brax import __version__, checkpoints, envs
 from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.networks import NetworkConfig
 from proto_brax.train.online import make_finetune
 
 SAC_SCRATCH = dict(alpha0=0.0, alpha_sac_init=1.0, target_entropy_scale=-1.0)
@@ -38,13 +39,14 @@ class Args:
     resume_dir: Path = Path("runs/behavior")  # full training state for resuming: RESUME_DIR/<env>
     learning_starts: int = 10_000
     buffer_capacity: int = 1_000_000
+    hidden: tuple[int, ...] = (256, 256)  # actor and critic hidden sizes
 
 
 def behavior_config(args: Args) -> FinetuneConfig:
     return FinetuneConfig(
         env=args.env, backend=args.backend, algo="sac", steps=args.steps, eval_every=args.snapshot_every,
         eval_episodes=args.eval_episodes, sampling="online", learning_starts=args.learning_starts,
-        buffer_capacity=args.buffer_capacity,
+        buffer_capacity=args.buffer_capacity, net=NetworkConfig(hidden=tuple(args.hidden)),
     )
 
 

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+from pathlib import Path
 from typing import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 from proto_brax import envs
@@ -18,14 +22,16 @@ def uniform_policy(action_size: int) -> Policy:
     return lambda obs, key: jax.random.uniform(key, (obs.shape[0], action_size), minval=-1.0, maxval=1.0)
 
 
-def collect(env, episode_length: int, policy: Policy, key: jax.Array, num_envs: int, steps: int):
-    """Run ``num_envs`` envs for ``steps`` steps each (auto-reset, time-limit truncation recorded as ``timeouts``).
+def collect(env, episode_length: int, policy: Policy, key: jax.Array, num_envs: int, steps: int, state=None):
+    """Run ``num_envs`` envs for ``steps`` steps each (auto-reset; time-limit truncation recorded as ``timeouts``).
 
-    Returns (transitions ordered env-major so each env's episodes stay contiguous, finished episode returns with a
-    validity mask). Jit it with ``policy``, ``num_envs`` and ``steps`` static.
+    Returns (transitions [steps, num_envs, ...] step-major, finished-episode returns [steps, num_envs] with a
+    ``done`` mask, final env state). Pass the returned state back to continue in segments (for progress bars).
+    Jit it with ``policy``, ``num_envs`` and ``steps`` static.
     """
     k_reset, k_run = jax.random.split(key)
-    state = jax.vmap(lambda k: envs.env_reset(env, k))(jax.random.split(k_reset, num_envs))
+    if state is None:
+        state = jax.vmap(lambda k: envs.env_reset(env, k))(jax.random.split(k_reset, num_envs))
 
     def body(state, k):
         k_act, k_env = jax.random.split(k)
@@ -36,8 +42,130 @@ def collect(env, episode_length: int, policy: Policy, key: jax.Array, num_envs: 
         return state, (tr, done, ret)
 
     state, (tr, done, ret) = lax.scan(body, state, jax.random.split(k_run, steps))
-    # The last transition of every env is cut by the end of collection: mark it as a timeout (no true successor
-    # follows it in the array), as D4RL does for its final rows.
-    tr = tr.replace(timeouts=tr.timeouts.at[-1].set(jnp.where(tr.terminals[-1] > 0, 0.0, 1.0)))
-    flat = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1).reshape((num_envs * steps,) + x.shape[2:]), tr)
-    return flat, ret.T.reshape(-1), done.T.reshape(-1) > 0
+    return tr, ret, done > 0, state
+
+
+def flatten_env_major(tr: Transition) -> Transition:
+    """[steps, envs, ...] -> [envs * steps, ...] so that each env's episodes stay contiguous (as in D4RL files).
+
+    The last transition of every env is cut by the end of collection: it becomes a timeout unless it is a true
+    terminal, so no episode runs across the boundary between two envs.
+    """
+    last_cut = jnp.where(tr.terminals[-1] > 0, 0.0, 1.0)
+    tr = tr.replace(timeouts=tr.timeouts.at[-1].set(jnp.maximum(tr.timeouts[-1], last_cut)))
+    return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1).reshape((-1,) + x.shape[2:]), tr)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# D4RL-style datasets from the suite's own behaviour policies
+
+KINDS = ("random", "medium", "medium-replay", "expert", "medium-expert")
+LOCOMOTION = ("hopper", "walker2d", "halfcheetah", "ant")
+DATASET_ENVS = LOCOMOTION + ("point",)
+DEFAULT_SIZE = {"point": 100_000}  # every other env: 1_000_000 transitions (D4RL's size)
+BEHAVIOR_ROOT = Path(__file__).resolve().parents[2] / "checkpoints" / "behavior"
+
+
+def default_size(env: str) -> int:
+    return DEFAULT_SIZE.get(env, 1_000_000)
+
+
+def dataset_names() -> list[str]:
+    return [f"{env}-{kind}" for env in DATASET_ENVS for kind in KINDS]
+
+
+def parse_name(name: str) -> tuple[str, str]:
+    for env in DATASET_ENVS:
+        for kind in KINDS:
+            if name == f"{env}-{kind}":
+                return env, kind
+    raise ValueError(f"Unknown dataset {name!r}: valid names are {', '.join(dataset_names())}.")
+
+
+@dataclasses.dataclass(frozen=True)
+class Snapshot:
+    step: int
+    path: Path
+    eval_return: float
+    metadata: dict
+
+
+def list_snapshots(env: str, root: Path | None = None) -> list[Snapshot]:
+    """Behaviour-policy snapshots of ``env`` (complete ones only: an interrupted save has no metadata.json)."""
+    from proto_brax.checkpoints import read_metadata
+
+    root = Path(root or BEHAVIOR_ROOT) / env
+    snaps = []
+    for d in sorted(root.glob("step_*")):
+        if (d / "metadata.json").exists():
+            meta = read_metadata(d)
+            snaps.append(Snapshot(int(meta["step"]), d, float(meta["eval_return_mean"]), meta))
+    if not snaps:
+        raise FileNotFoundError(
+            f"No behaviour-policy snapshots for {env!r} under {root}: train them with "
+            f"`python -m proto_brax.data.behavior --env {env}`."
+        )
+    return sorted(snaps, key=lambda s: s.step)
+
+
+def pick_expert_medium(snaps: list[Snapshot]) -> tuple[Snapshot, Snapshot]:
+    """D4RL's convention: expert = the final snapshot; medium = the snapshot whose evaluation return is closest to
+    one third of the expert's (ties go to the earlier snapshot)."""
+    expert = snaps[-1]
+    target = expert.eval_return / 3.0
+    medium = min(snaps[:-1] or snaps, key=lambda s: (abs(s.eval_return - target), s.step))
+    return expert, medium
+
+
+def load_snapshot_actor(snap: Snapshot, env):
+    """(nets, actor params) of a snapshot, with the network shapes recorded in its metadata."""
+    from proto_brax.checkpoints import restore
+    from proto_brax.networks import NetworkConfig, make_networks
+
+    net = snap.metadata["config"]["finetune"]["net"]
+    nets = make_networks(NetworkConfig(hidden=tuple(net["hidden"]), actor_layer_norm=net["actor_layer_norm"]),
+                         env.action_size)
+    template = nets.actor.init(jax.random.PRNGKey(0), jnp.zeros((1, env.observation_size)))
+    params, _ = restore(snap.path, template)
+    return nets, params
+
+
+def params_hash(params) -> str:
+    h = hashlib.sha256()
+    for leaf in jax.tree.leaves(params):
+        h.update(np.asarray(leaf).tobytes())
+    return h.hexdigest()[:16]
+
+
+def stochastic_policy(nets, params) -> Policy:
+    """The behaviour policy as D4RL used it: actions sampled from the (tanh-Gaussian) SAC actor."""
+    from proto_brax.networks import sample_tanh_gaussian
+
+    def policy(obs, key):
+        mean, log_std = nets.actor.apply(params, obs)
+        return sample_tanh_gaussian(key, mean, log_std)[0]
+
+    return policy
+
+
+def rollouts(env, horizon: int, policy: Policy, key, num_envs: int, steps: int, segment: int, bar=None):
+    """``num_envs × steps`` transitions (numpy, env-major), collected in jitted segments of ``segment`` steps so a
+    progress bar can follow; the env state is threaded through segments, so the result does not depend on
+    ``segment`` boundaries except through the keys."""
+    if steps % segment:
+        raise ValueError(f"steps ({steps}) must be a multiple of segment ({segment}).")
+    run = jax.jit(lambda k, s: _segment(env, horizon, policy, k, num_envs, segment, s))
+    state = jax.vmap(lambda k: envs.env_reset(env, k))(jax.random.split(jax.random.fold_in(key, 0), num_envs))
+    parts = []
+    for i in range(steps // segment):
+        tr, state = run(jax.random.fold_in(key, i + 1), state)
+        parts.append(jax.device_get(tr))
+        if bar is not None:
+            bar.update(segment * num_envs)
+    tr = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+    return jax.device_get(flatten_env_major(jax.tree.map(jnp.asarray, tr)))
+
+
+def _segment(env, horizon, policy, key, num_envs, steps, state):
+    tr, _, _, state = collect(env, horizon, policy, key, num_envs, steps, state)
+    return tr, state

@@ -123,35 +123,47 @@ class GridProgram:
     chunk: Callable  # (state[G], hparams[G], dataset, start) -> (state[G], metrics[G])
 
 
-def compile_grid(ft) -> GridProgram:
-    init = jax.jit(jax.vmap(ft.init, in_axes=(0, 0, None, None)))
+def compile_grid(ft, mesh: Mesh) -> GridProgram:
+    """jit(vmap) of init and chunk with explicit shardings: grid-batched values split over ``mesh``, the dataset,
+    the pretrained bundle and the chunk's start step replicated. Fixing the output shardings keeps every chunk call
+    on the first compilation (an inferred sharding that differed between init's and chunk's outputs would recompile).
+    """
+    g, r = NamedSharding(mesh, P("grid")), NamedSharding(mesh, P())
+    init = jax.jit(jax.vmap(ft.init, in_axes=(0, 0, None, None)), in_shardings=(g, g, r, r), out_shardings=g)
     # The state (with its replay buffers) is donated: each chunk updates it in place instead of copying it.
-    chunk = jax.jit(jax.vmap(ft.chunk, in_axes=(0, 0, None, None)), donate_argnums=(0,))
+    chunk = jax.jit(jax.vmap(ft.chunk, in_axes=(0, 0, None, None)), in_shardings=(g, g, r, r),
+                    out_shardings=(g, g), donate_argnums=(0,))
     return GridProgram(init=init, chunk=chunk)
 
 
 def run_grid(
     ft, grid: Grid, pretrained=None, dataset=None, mesh: Mesh | None = None,
-    program: GridProgram | None = None, callback: Callable[[int, dict], None] | None = None,
+    program: GridProgram | None = None, callback: Callable[[int, dict, Any], None] | None = None,
+    restore: Callable[[Any], tuple[Any, int]] | None = None,
 ):
     """Run every point of ``grid`` to the end in one compiled program, sharded over ``mesh``.
 
-    Returns (final state, metrics with leaves [num_chunks, grid.size, ...]) with the padding runs removed.
-    ``callback(chunk_index, metrics)`` sees each chunk's host metrics (progress bars, logging).
+    Returns (final state, metrics with leaves [chunks run, grid.size, ...]) with the padding runs removed.
+    ``callback(chunk_index, metrics, state)`` sees each chunk's host metrics and the (padded, sharded) state, e.g. to
+    log and checkpoint; ``restore(initial_state) -> (state, chunks_done)`` resumes an interrupted run.
     """
     mesh = mesh or grid_mesh()
-    program = program or compile_grid(ft)
+    program = program or compile_grid(ft, mesh)
     size = padded_size(grid.size, mesh)
     hp = shard(pad_leading(grid.hparams, size), mesh)
     keys = shard(pad_leading(seed_keys(grid.seeds), size), mesh)
     shared = replicate((pretrained, dataset), mesh)
     state = program.init(hp, keys, *shared)
+    start = 0
+    if restore is not None:
+        state, start = restore(state)
     history = []
-    for c in range(ft.cfg.num_chunks):
-        state, m = program.chunk(state, hp, shared[1], jnp.asarray(c * ft.cfg.eval_every, jnp.int32))
+    for c in range(start, ft.cfg.num_chunks):
+        start_step = replicate(jnp.asarray(c * ft.cfg.eval_every, jnp.int32), mesh)
+        state, m = program.chunk(state, hp, shared[1], start_step)
         m = jax.tree.map(lambda x: np.asarray(x)[: grid.size], jax.device_get(m))
         if callback is not None:
-            callback(c, m)
+            callback(c, m, state)
         history.append(m)
     state = jax.tree.map(lambda x: x[: grid.size], state)
-    return state, jax.tree.map(lambda *xs: np.stack(xs), *history)
+    return state, (jax.tree.map(lambda *xs: np.stack(xs), *history) if history else {})

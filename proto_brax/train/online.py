@@ -31,6 +31,7 @@ from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import OfflineDataset
 from proto_brax.data.replay import ReplayBuffer, replay_init, replay_insert, replay_sample
 from proto_brax.networks import make_networks
+from proto_brax.train.evaluate import run_episodes
 
 ALGORITHMS = {"sac": sac, "td3": td3}
 
@@ -119,18 +120,8 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
 
     def evaluate(actor, key: jax.Array) -> jax.Array:
         """Returns of ``eval_episodes`` deterministic episodes run side by side (each to termination or horizon)."""
-        s = jax.vmap(env.reset)(jax.random.split(key, cfg.eval_episodes))
-
-        def body(carry, _):
-            s, ret, alive = carry
-            a = algo.act(nets, actor, s.obs, key, None, deterministic=True)
-            s = jax.vmap(env.step)(s, a)
-            ret = ret + jnp.where(alive, s.reward, 0.0)  # where, not multiply: a finished episode may hold NaNs
-            return (s, ret, jnp.logical_and(alive, s.done == 0)), None
-
-        init = (s, jnp.zeros(cfg.eval_episodes), jnp.ones(cfg.eval_episodes, bool))
-        (_, ret, _), _ = lax.scan(body, init, None, length=horizon)
-        return ret
+        policy = lambda obs, k: algo.act(nets, actor, obs, k, None, deterministic=True)  # noqa: E731
+        return run_episodes(env, horizon, policy, key, cfg.eval_episodes)
 
     def chunk(state: TrainState, hp: HParams, dataset, start: jax.Array):
         TRACE_COUNT["chunk"] += 1

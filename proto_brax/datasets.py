@@ -1,0 +1,257 @@
+"""``python -m proto_brax.datasets``: D4RL-style offline datasets generated reproducibly from committed behaviour policies.
+
+Kinds (per env, D4RL's definitions adapted to the suite's own SAC runs, ``checkpoints/behavior/<env>/``):
+
+* ``random``: uniform random actions in [-1, 1];
+* ``expert``: the final behaviour snapshot, actions sampled from its tanh-Gaussian (stochastic, as D4RL);
+* ``medium``: the snapshot whose evaluation return is closest to a third of the expert's, stochastic;
+* ``medium-replay``: the policies an agent went through up to medium: the uniform policy (the replay buffer's warm-up)
+  then every snapshot up to and including medium, each contributing an equal share of the transitions (stochastic);
+* ``medium-expert``: ``medium`` followed by ``expert`` (twice the size).
+
+Each dataset is ``size`` transitions from ``num_envs`` envs run side by side (episodes stay contiguous per env); time
+limits are ``timeouts``, true terminations ``terminals``. Same name, size and seed ⇒ identical arrays (checked by the
+content hash in the metadata).
+
+    python -m proto_brax.datasets list
+    python -m proto_brax.datasets make hopper-medium [--size N] [--seed S]
+    python -m proto_brax.datasets info hopper-medium
+    python -m proto_brax.datasets references hopper
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import tyro
+
+ENV_VAR = "PROTO_BRAX_DATASETS"
+
+
+def cache_dir(override: Path | None = None) -> Path:
+    """--cache-dir, else $PROTO_BRAX_DATASETS, else ~/.cache/proto_brax/datasets."""
+    if override is not None:
+        return Path(override)
+    return Path(os.environ.get(ENV_VAR) or Path.home() / ".cache" / "proto_brax" / "datasets")
+
+
+def dataset_path(name: str, size: int | None = None, seed: int = 0, cache: Path | None = None) -> Path:
+    from proto_brax.data.generate import default_size, parse_name
+
+    env, _ = parse_name(name)
+    size = size or default_size(env)
+    suffix = "" if (size == default_size(env) and seed == 0) else f"-n{size}-seed{seed}"
+    return cache_dir(cache) / f"{name}{suffix}.npz"
+
+
+def rebuild_command(name: str, size: int | None, seed: int) -> str:
+    extra = (f" --size {size}" if size else "") + (f" --seed {seed}" if seed else "")
+    return f"python -m proto_brax.datasets make {name}{extra} --force"
+
+
+def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: int = 100,
+                 behavior_root: Path | None = None, progress: bool = True):
+    """Generate dataset ``name`` (numpy ``OfflineDataset``, metadata). Deterministic in (name, size, seed)."""
+    import jax
+    from tqdm import tqdm
+
+    from proto_brax import __version__, envs
+    from proto_brax.data import generate as g
+    from proto_brax.data.dataset import episode_return_stats
+
+    env_name, kind = g.parse_name(name)
+    size = size or g.default_size(env_name)
+    if size % num_envs:
+        raise ValueError(f"size ({size}) must be a multiple of num_envs ({num_envs}).")
+    spec = envs.get_spec(env_name)
+    env = envs.make_env(env_name)
+    key = jax.random.fold_in(jax.random.PRNGKey(seed), g.KINDS.index(kind))
+    meta = {"name": name, "env": env_name, "backend": spec.default_backend, "kind": kind, "size": size,
+            "seed": seed, "num_envs": num_envs, "episode_length": spec.episode_length, "version": __version__}
+
+    policies: list[tuple[str, object, dict]] = []  # (label, policy, info)
+    if kind != "random":
+        snaps = g.list_snapshots(env_name, behavior_root)
+        expert, medium = g.pick_expert_medium(snaps)
+        meta["expert_snapshot"] = {"step": expert.step, "eval_return": expert.eval_return}
+        meta["medium_snapshot"] = {"step": medium.step, "eval_return": medium.eval_return}
+
+        def snap_policy(s):
+            nets, params = g.load_snapshot_actor(s, env)
+            return (f"step_{s.step}", g.stochastic_policy(nets, params),
+                    {"step": s.step, "eval_return": s.eval_return, "params_hash": g.params_hash(params)})
+
+    if kind == "random":
+        policies.append(("uniform", g.uniform_policy(env.action_size), {"step": 0}))
+    elif kind in ("medium", "expert"):
+        policies.append(snap_policy(medium if kind == "medium" else expert))
+    elif kind == "medium-replay":
+        policies.append(("uniform", g.uniform_policy(env.action_size), {"step": 0}))
+        policies += [snap_policy(s) for s in snaps if s.step <= medium.step]
+    else:  # medium-expert
+        policies += [snap_policy(medium), snap_policy(expert)]
+
+    # Split the transitions between the policies (medium-replay: equal shares; medium-expert: size each).
+    total = 2 * size if kind == "medium-expert" else size
+    per_env = total // num_envs
+    n = len(policies)
+    shares = [per_env // n] * n
+    shares[-1] += per_env - sum(shares)
+    parts = []
+    bar = tqdm(total=total, unit="tr", desc=name, disable=not progress, dynamic_ncols=True)
+    for i, ((label, policy, info), steps) in enumerate(zip(policies, shares)):
+        segment = next(d for d in (1000, 500, 250, 200, 100, 50, 25, 10, 5, 2, 1) if steps % d == 0)
+        part = g.rollouts(env, spec.episode_length, policy, jax.random.fold_in(key, i), num_envs, steps, segment, bar)
+        parts.append(part)
+        info["transitions"] = steps * num_envs
+    bar.close()
+    data = jax.tree.map(lambda *xs: np.concatenate(xs).astype(np.float32), *parts)
+    meta["behavior"] = [info for _, _, info in policies]
+    meta["size"] = total
+    meta["returns"] = episode_return_stats(data)
+    return data, meta
+
+
+def load_dataset(name_or_path: str | Path, size: int | None = None, seed: int = 0, cache: Path | None = None):
+    """A registered dataset from the cache (error naming the `make` command when absent), or a file path
+    (our .npz or a D4RL .hdf5)."""
+    from proto_brax.data import dataset as ds
+    from proto_brax.data.generate import dataset_names
+
+    p = Path(name_or_path)
+    if str(name_or_path) in dataset_names():
+        path = dataset_path(str(name_or_path), size, seed, cache)
+        hint = rebuild_command(str(name_or_path), size, seed).replace(" --force", "")
+        if not path.exists():
+            raise FileNotFoundError(f"Dataset {name_or_path} is not in the cache ({path}): build it with `{hint}`.")
+        return ds.load_npz(path, rebuild_hint=hint + " --force")
+    if p.exists():
+        return ds.load_d4rl_hdf5(p) if p.suffix in (".hdf5", ".h5") else ds.load_npz(p)
+    raise ValueError(f"Unknown dataset {name_or_path!r}: not a file, and not one of: {', '.join(dataset_names())}.")
+
+
+# ------------------------------------------------------------------------------------------------------------- CLI
+
+
+@dataclasses.dataclass
+class Make:
+    """Generate a dataset into the cache (atomic write)."""
+
+    name: tyro.conf.Positional[str]
+    size: int | None = None
+    """Transitions (default: 10⁶; medium-expert is twice that)."""
+    seed: int = 0
+    num_envs: int = 100
+    """Envs rolled out side by side."""
+    cache_dir: Path | None = None
+    """Default: $PROTO_BRAX_DATASETS or ~/.cache/proto_brax/datasets."""
+    force: bool = False
+    """Rebuild even if cached."""
+
+
+@dataclasses.dataclass
+class Info:
+    """Print a cached dataset's metadata and episode-return statistics."""
+
+    name: tyro.conf.Positional[str]
+    size: int | None = None
+    seed: int = 0
+    cache_dir: Path | None = None
+
+
+@dataclasses.dataclass
+class List:
+    """List every dataset name, its size and whether it is cached."""
+
+    cache_dir: Path | None = None
+
+
+@dataclasses.dataclass
+class References:
+    """Measure an env's normalized-score references: uniform policy and deterministic expert snapshot."""
+
+    env: tyro.conf.Positional[str]
+    episodes: int = 100
+    seed: int = 0
+
+
+def cmd_make(a: Make) -> Path:
+    from proto_brax.data.dataset import save_npz
+
+    path = dataset_path(a.name, a.size, a.seed, a.cache_dir)
+    if path.exists() and not a.force:
+        print(f"{a.name}: already cached at {path} (use --force to rebuild)")
+        return path
+    t0 = time.time()
+    data, meta = make_dataset(a.name, a.size, a.seed, a.num_envs)
+    meta["seconds"] = time.time() - t0
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_npz(path, data, meta)
+    r = meta["returns"]
+    print(f"{a.name}: {meta['size']} transitions, {r['num_episodes']} episodes, return mean {r['mean']:.1f} "
+          f"(min {r['min']:.1f}, max {r['max']:.1f}) in {meta['seconds']:.0f} s -> {path}")
+    return path
+
+
+def cmd_info(a: Info) -> dict:
+    from proto_brax import envs
+
+    data, meta = load_dataset(a.name, a.size, a.seed, a.cache_dir)
+    r = meta["returns"]
+    score = envs.normalized_score(meta["env"], r["mean"])
+    print(f"{a.name}: {meta['size']} transitions from {meta['kind']} behaviour on {meta['env']} ({meta['backend']})")
+    print(f"  episodes {r['num_episodes']}, return mean {r['mean']:.1f} min {r['min']:.1f} max {r['max']:.1f}, "
+          f"normalized score of the mean {float(score):.1f}")
+    for k in ("seed", "num_envs", "expert_snapshot", "medium_snapshot", "behavior", "content_hash", "version"):
+        if k in meta:
+            print(f"  {k}: {meta[k]}")
+    return meta
+
+
+def cmd_list(a: List) -> None:
+    from proto_brax.data.generate import dataset_names, default_size, parse_name
+
+    for name in dataset_names():
+        env, kind = parse_name(name)
+        size = default_size(env) * (2 if kind == "medium-expert" else 1)
+        cached = dataset_path(name, None, 0, a.cache_dir).exists()
+        print(f"{name:28s} {size:>9d}  {'cached' if cached else '-'}")
+
+
+def cmd_references(a: References) -> dict:
+    import jax
+
+    from proto_brax import envs
+    from proto_brax.data import generate as g
+    from proto_brax.train.evaluate import run_episodes
+
+    spec = envs.get_spec(a.env)
+    env = envs.make_env(a.env)
+    expert, _ = g.pick_expert_medium(g.list_snapshots(a.env))
+    nets, params = g.load_snapshot_actor(expert, env)
+    import jax.numpy as jnp
+
+    det = lambda obs, k: jnp.tanh(nets.actor.apply(params, obs)[0])  # noqa: E731
+    out = {}
+    for label, pol in (("random", g.uniform_policy(env.action_size)), ("expert", det)):
+        ret = jax.jit(lambda k: run_episodes(env, spec.episode_length, pol, k, a.episodes))(jax.random.PRNGKey(a.seed))
+        ret = np.asarray(ret)
+        out[label] = {"mean": float(ret.mean()), "std": float(ret.std()), "episodes": a.episodes}
+        print(f"{a.env} {label}: mean {ret.mean():.2f} ± {ret.std():.2f} over {a.episodes} episodes"
+              + (f" (expert snapshot step {expert.step})" if label == "expert" else ""))
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    cmd = tyro.extras.subcommand_cli_from_dict(
+        {"make": Make, "info": Info, "list": List, "references": References}, args=argv
+    )
+    {Make: cmd_make, Info: cmd_info, List: cmd_list, References: cmd_references}[type(cmd)](cmd)
+
+
+if __name__ == "__main__":
+    main()

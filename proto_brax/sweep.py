@@ -1,0 +1,287 @@
+"""``python -m proto_brax.sweep``: a τ×η×α₀×seed grid of PROTO finetuning runs as one compiled, sharded program.
+
+Every grid point and seed runs inside one ``jit(vmap(chunk))``; the grid axis is sharded over all devices (on a CPU,
+one host device per core). Between chunks the host shows progress, appends evaluation rows to ``metrics.jsonl`` and
+checkpoints the whole sweep state with orbax, so ``--resume`` continues an interrupted sweep and ends with the same
+results as an uninterrupted one.
+
+Outputs in ``--out``: ``config.json``, ``metrics.jsonl`` (one row per evaluation per run), ``summary.json`` (per grid
+point: final and average return / normalized score over seeds, mean ± std, IQM with 95% bootstrap CI) and ``state/``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+ALGOS = {"proto-sac": "sac", "proto-td3": "td3"}
+GRID_AXES = ("tau", "eta", "alpha0")
+
+
+@dataclasses.dataclass
+class SweepArgs:
+    """PROTO finetuning sweep. Grid axes take several values and form their product (× seeds)."""
+
+    env: str = "hopper"
+    """Registered env (hopper, walker2d, halfcheetah, ant, point)."""
+    backend: str | None = None
+    """Brax backend (generalized, positional, spring, mjx); default: the env's measured default."""
+    algo: Literal["proto-sac", "proto-td3"] = "proto-sac"
+    """PROTO with SAC (KL to π̄) or TD3 (MSE to π̄). Frozen is tau 0; direct finetuning is alpha0 0."""
+    tau: tuple[float, ...] = (0.0, 0.005)
+    """Grid axis: π̄ Polyak speed τ in [0, 1] (0 = Frozen: π̄ stays π₀)."""
+    eta: tuple[float, ...] = (0.5, 1.0)
+    """Grid axis: annealing speed η >= 0 of the regularization weight α."""
+    alpha0: tuple[float, ...] = (2.0,)
+    """Grid axis: initial regularization weight α₀ >= 0 (0 = direct finetuning)."""
+    seeds: tuple[int, ...] = (0,)
+    """Seeds: every grid point runs once per seed."""
+    steps: int = 10_000
+    """Online env steps per run."""
+    eval_every: int = 2_000
+    """Env steps between evaluations (one compiled chunk)."""
+    eval_episodes: int = 5
+    """Deterministic evaluation episodes (vectorized) per evaluation."""
+    anneal_horizon: float | None = None
+    """N in α_t = α₀ (1 − η t / N); default: steps (α annealed over the same fraction of the run as the paper's 10⁶)."""
+    batch_size: int = 256
+    learning_starts: int = 1_000
+    """Env steps collected before the first update."""
+    hidden: tuple[int, ...] = (256, 256)
+    """Hidden layer sizes of actor and critics."""
+    critic_layer_norm: bool = True
+    """LayerNorm in the critics (paper: on, except halfcheetah)."""
+    value_reg_backup: bool = True
+    """PROTO penalty in the critic target (paper: off for AntMaze/Adroit)."""
+    sampling: Literal["symmetric", "union", "online"] | None = None
+    """Replay mixing; default: symmetric with a dataset, online without."""
+    offline_fraction: float = 0.5
+    """Share of each batch from the offline data in symmetric mode."""
+    dataset: Path | None = None
+    """Offline dataset file: our .npz, or a D4RL-format .hdf5."""
+    hp: dict[str, float] = dataclasses.field(default_factory=dict)
+    """Other traced hyper-parameters, e.g. --hp lr_actor 1e-4 gamma 0.995 (see proto_brax.config.HParams)."""
+    out: Path = Path("runs/sweep")
+    """Output directory."""
+    overwrite: bool = False
+    """Replace an existing --out."""
+    resume: bool = False
+    """Continue the interrupted sweep in --out (same configuration)."""
+    devices: int | None = None
+    """CPU only: host devices to shard the grid over (default: one per core)."""
+
+
+def _finetune_config(args: SweepArgs):
+    from proto_brax.config import FinetuneConfig
+    from proto_brax.networks import NetworkConfig
+
+    sampling = args.sampling or ("symmetric" if args.dataset is not None else "online")
+    if sampling != "online" and args.dataset is None:
+        raise ValueError(f"--sampling {sampling} needs offline data: pass --dataset, or use --sampling online.")
+    return FinetuneConfig(
+        env=args.env, backend=args.backend, algo=ALGOS[args.algo],
+        net=NetworkConfig(hidden=tuple(args.hidden), critic_layer_norm=args.critic_layer_norm),
+        steps=args.steps, eval_every=args.eval_every, eval_episodes=args.eval_episodes, batch_size=args.batch_size,
+        learning_starts=args.learning_starts, sampling=sampling, offline_fraction=args.offline_fraction,
+        value_reg_backup=args.value_reg_backup,
+    )
+
+
+def _load_dataset(path: Path | None):
+    if path is None:
+        return None, None
+    from proto_brax.data import dataset as ds
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"Dataset file {path} does not exist.")
+    if path.suffix in (".hdf5", ".h5"):
+        return ds.load_d4rl_hdf5(path)
+    return ds.load_npz(path)
+
+
+def _prepare_out(args: SweepArgs, config: dict) -> None:
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()):
+        if args.resume:
+            old = json.loads((out / "config.json").read_text())
+            if old["sweep"] != config["sweep"]:
+                diff = {k: (old["sweep"].get(k), v) for k, v in config["sweep"].items() if old["sweep"].get(k) != v}
+                raise ValueError(f"--resume: the configuration differs from the one in {out}: {diff}.")
+            return
+        if not args.overwrite:
+            raise FileExistsError(f"{out} exists: pass --resume to continue it, --overwrite to replace it, "
+                                  "or choose another --out.")
+        shutil.rmtree(out)
+    elif args.resume:
+        raise FileNotFoundError(f"--resume: nothing to resume in {out}.")
+    out.mkdir(parents=True, exist_ok=True)
+    from proto_brax.checkpoints import write_json_atomic
+
+    write_json_atomic(out / "config.json", config)
+
+
+def _rows(chunk: int, m: dict, grid, env: str, updates_per_s: float) -> list[dict]:
+    from proto_brax.envs import normalized_score
+
+    scalar_keys = [k for k, v in m.items() if np.ndim(v) == 1]
+    rows = []
+    for i, point in enumerate(grid.points):
+        row = {"chunk": chunk, "run": i, **point}
+        row.update({k: float(m[k][i]) for k in scalar_keys})
+        row["step"] = int(m["step"][i])
+        row["normalized_score"] = float(normalized_score(env, row["eval_return"]))
+        row["eval_returns"] = [float(x) for x in m["eval_returns"][i]]
+        row["diverged"] = not all(np.isfinite(row[k]) for k in ("eval_return", "critic_loss", "q_mean"))
+        row["grid_updates_per_s"] = updates_per_s
+        rows.append(row)
+    return rows
+
+
+def _truncate_metrics(path: Path, chunks_done: int) -> None:
+    """Drop rows of chunks that were logged but not checkpointed (a crash between the two): they are re-run."""
+    if not path.exists():
+        return
+    keep = [line for line in path.read_text().splitlines() if line and json.loads(line)["chunk"] < chunks_done]
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text("".join(line + "\n" for line in keep))
+    os.replace(tmp, path)
+
+
+def summarize_runs(rows: list[dict], grid_keys: list[str]) -> list[dict]:
+    """Per grid point (over seeds): final and average return/normalized score with mean ± std and IQM [95% CI]."""
+    from proto_brax.stats import summarize
+
+    by_point: dict[tuple, dict[int, list[dict]]] = {}
+    for r in rows:
+        by_point.setdefault(tuple(r[k] for k in grid_keys), {}).setdefault(r["seed"], []).append(r)
+    out = []
+    for point, seeds in by_point.items():
+        runs = [sorted(rs, key=lambda r: r["step"]) for rs in seeds.values()]
+        rec = dict(zip(grid_keys, point))
+        rec["seeds"] = sorted(seeds)
+        rec["diverged_seeds"] = sorted(s for s, rs in seeds.items() if any(r["diverged"] for r in rs))
+        for key in ("eval_return", "normalized_score"):
+            rec[f"final_{key}"] = summarize([rs[-1][key] for rs in runs])
+            rec[f"average_{key}"] = summarize([np.mean([r[key] for r in rs]) for rs in runs])
+        rec["final_dev_pi0"] = summarize([rs[-1]["dev_pi0"] for rs in runs])
+        out.append(rec)
+    return out
+
+
+def print_table(summary: list[dict], grid_keys: list[str]) -> None:
+    head = " ".join(f"{k:>8}" for k in grid_keys)
+    print(f"\n{head} | {'final return':>20} | {'IQM [95% CI]':>26} | {'norm. score':>14} | diverged")
+    for rec in summary:
+        f = rec["final_eval_return"]
+        n = rec["final_normalized_score"]
+        vals = " ".join(f"{rec[k]:>8.4g}" for k in grid_keys)
+        print(f"{vals} | {f['mean']:>9.1f} ± {f['std']:>8.1f} | {f['iqm']:>8.1f} [{f['iqm_low']:>7.1f}, "
+              f"{f['iqm_high']:>7.1f}] | {n['mean']:>6.1f} ± {n['std']:>5.1f} | {rec['diverged_seeds'] or '-'}")
+
+
+def run_sweep(args: SweepArgs) -> list[dict]:
+    """Validate, compile, run (or resume) the grid; returns the per-point summary."""
+    from proto_brax.config import FinetuneConfig  # noqa: F401  (validation happens in _finetune_config)
+    from proto_brax.train.grid import make_grid
+
+    cfg = _finetune_config(args)
+    axes = {"tau": list(args.tau), "eta": list(args.eta), "alpha0": list(args.alpha0)}
+    base = {"anneal_horizon": float(args.anneal_horizon or args.steps), **args.hp}
+    grid = make_grid(axes, list(args.seeds), base=base)  # validated before anything compiles
+    dataset, dmeta = _load_dataset(args.dataset)
+    sweep_cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
+                 if k not in ("out", "overwrite", "resume", "devices")}
+    sweep_cfg = json.loads(json.dumps(sweep_cfg))  # tuples -> lists, as config.json stores them
+    config = {"sweep": sweep_cfg, "finetune": dataclasses.asdict(cfg), "grid": list(grid.points),
+              "dataset_metadata": dmeta}
+    _prepare_out(args, config)
+
+    import jax
+    from tqdm import tqdm
+
+    from proto_brax import __version__, checkpoints
+    from proto_brax.data.dataset import validate_for_env
+    from proto_brax.train.grid import compile_grid, grid_mesh, padded_size, run_grid
+    from proto_brax.train.online import make_finetune
+
+    ft = make_finetune(cfg)
+    if dataset is not None:
+        from proto_brax.envs import make_env
+
+        env = make_env(cfg.env, cfg.backend)
+        validate_for_env(dataset, env.observation_size, env.action_size, str(args.dataset), env_name=cfg.env)
+        dataset = jax.tree.map(jax.numpy.asarray, dataset)
+    mesh = grid_mesh()
+    out = Path(args.out)
+    metrics_path = out / "metrics.jsonl"
+    print(f"grid: {grid.size} runs ({' × '.join(f'{k} {len(v)}' for k, v in axes.items())} × {len(args.seeds)} "
+          f"seeds), padded to {padded_size(grid.size, mesh)} over {mesh.devices.size} device(s) "
+          f"{[d.platform for d in mesh.devices.flat]}; {cfg.steps} steps per run", flush=True)
+
+    def restore(state):
+        if not args.resume or not (out / "state" / "metadata.json").exists():
+            return state, 0
+        state, meta = checkpoints.restore(out / "state", state)
+        _truncate_metrics(metrics_path, meta["chunks_done"])
+        print(f"resumed after chunk {meta['chunks_done']} of {cfg.num_chunks}", flush=True)
+        bar.update(meta["chunks_done"] * cfg.eval_every)
+        return state, meta["chunks_done"]
+
+    bar = tqdm(total=cfg.steps, unit="step", desc="sweep", dynamic_ncols=True, file=sys.stdout)
+    timing = {"t": time.time(), "first": None}
+
+    def on_chunk(c, m, state):
+        now = time.time()
+        dt = now - timing["t"]
+        if timing["first"] is None:
+            timing["first"] = dt  # includes compilation
+        updates_per_s = float(np.sum(m["updates"])) / dt
+        rows = _rows(c, m, grid, cfg.env, updates_per_s)
+        with open(metrics_path, "a") as f:
+            f.writelines(json.dumps(r) + "\n" for r in rows)
+        checkpoints.save(out / "state", state, {"chunks_done": c + 1, "version": __version__})
+        finite = [r["eval_return"] for r in rows if np.isfinite(r["eval_return"])]
+        bar.set_postfix(eval=f"{np.mean(finite) if finite else float('nan'):.1f}", upd_s=f"{updates_per_s:.0f}")
+        bar.update(cfg.eval_every)
+        timing["t"] = time.time()
+
+    program = compile_grid(ft, mesh)
+    run_grid(ft, grid, None, dataset, mesh=mesh, program=program, callback=on_chunk, restore=restore)
+    bar.close()
+    rows = [json.loads(line) for line in metrics_path.read_text().splitlines() if line]
+    grid_keys = [k for k in axes if len(axes[k]) > 1] or ["tau"]
+    summary = summarize_runs(rows, grid_keys)
+    checkpoints.write_json_atomic(out / "summary.json", {
+        "grid_keys": grid_keys, "points": summary, "env": cfg.env, "steps": cfg.steps,
+        "first_chunk_seconds_incl_compile": timing["first"],
+    })
+    print_table(summary, grid_keys)
+    print(f"\nwrote {out}/config.json, metrics.jsonl ({len(rows)} rows), summary.json")
+    return summary
+
+
+def main(argv: list[str] | None = None) -> None:
+    import tyro
+
+    args = tyro.cli(SweepArgs, args=argv)
+    # Before JAX initializes its backend: host devices for sharding on CPU, and the scheduler fix MJX needs.
+    from proto_brax import envs
+    from proto_brax.train.grid import use_host_devices
+
+    if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":
+        os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
+    use_host_devices(args.devices)
+    run_sweep(args)
+
+
+if __name__ == "__main__":
+    main()

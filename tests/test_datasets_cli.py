@@ -1,0 +1,94 @@
+"""Dataset generation from committed behaviour snapshots: determinism, kinds, cache, errors (on the point task)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from proto_brax import datasets
+from proto_brax.data import generate as g
+from proto_brax.data.dataset import CorruptDatasetError, content_hash, episode_returns, load_npz
+
+SMALL = dict(size=2000, num_envs=20, progress=False)
+
+
+@pytest.fixture(scope="module")
+def medium():
+    return datasets.make_dataset("point-medium", seed=0, **SMALL)
+
+
+def test_same_name_size_seed_gives_identical_arrays(medium):
+    again = datasets.make_dataset("point-medium", seed=0, **SMALL)
+    assert content_hash(medium[0]) == content_hash(again[0])
+    other = datasets.make_dataset("point-medium", seed=1, **SMALL)
+    assert content_hash(medium[0]) != content_hash(other[0])
+
+
+def test_medium_uses_the_snapshot_closest_to_a_third_of_expert(medium):
+    snaps = g.list_snapshots("point")
+    expert, med = g.pick_expert_medium(snaps)
+    assert expert.step == max(s.step for s in snaps)
+    best = min(abs(s.eval_return - expert.eval_return / 3) for s in snaps[:-1])
+    assert abs(med.eval_return - expert.eval_return / 3) == best
+    data, meta = medium
+    assert meta["medium_snapshot"]["step"] == med.step and meta["behavior"][0]["step"] == med.step
+    assert data.observations.shape == (2000, 4) and data.actions.shape == (2000, 2)
+    assert np.all(np.abs(data.actions) <= 1.0)
+
+
+def test_synthetic_snapshot_choice():
+    mk = lambda step, r: g.Snapshot(step, Path("."), r, {})  # noqa: E731
+    snaps = [mk(0, 5.0), mk(1, 31.0), mk(2, 40.0), mk(3, 100.0), mk(4, 90.0)]
+    expert, med = g.pick_expert_medium(snaps)
+    assert expert.step == 4 and med.step == 1  # 90 / 3 = 30 -> 31
+
+
+def test_kinds_are_ordered_and_sized():
+    mr, meta = datasets.make_dataset("point-medium-replay", **SMALL)
+    steps = [b["step"] for b in meta["behavior"]]
+    assert steps[0] == 0 and steps == sorted(steps) and steps[-1] == meta["medium_snapshot"]["step"]
+    assert sum(b["transitions"] for b in meta["behavior"]) == 2000 == mr.rewards.shape[0]
+    me, meta = datasets.make_dataset("point-medium-expert", **SMALL)
+    assert me.rewards.shape[0] == 4000 and [b["step"] for b in meta["behavior"]] == [
+        meta["medium_snapshot"]["step"], meta["expert_snapshot"]["step"]]
+    rnd, _ = datasets.make_dataset("point-random", **SMALL)
+    ex, _ = datasets.make_dataset("point-expert", **SMALL)
+    assert episode_returns(ex).mean() > episode_returns(rnd).mean() + 20  # the expert is clearly better
+
+
+def test_episodes_are_contiguous_and_bounded(medium):
+    data, _ = medium
+    ends = np.flatnonzero((data.terminals + data.timeouts) > 0)
+    # every env's block of 100 transitions ends an episode; no successor crosses an episode end
+    assert set(range(99, 2000, 100)) <= set(ends.tolist())
+    inner = np.setdiff1d(np.arange(1999), ends)
+    np.testing.assert_allclose(data.next_observations[inner], data.observations[inner + 1], atol=1e-6)
+
+
+def test_cli_make_info_list_and_corruption(tmp_path, capsys):
+    args = ["--size", "2000", "--num-envs", "20", "--cache-dir", str(tmp_path)]
+    datasets.main(["make", "point-random", *args])
+    path = datasets.dataset_path("point-random", 2000, 0, tmp_path)
+    assert path.exists() and not list(tmp_path.glob(".*tmp"))
+    load_npz(path)
+    datasets.main(["info", "point-random", "--size", "2000", "--cache-dir", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "episodes" in out and "return mean" in out
+    datasets.main(["list", "--cache-dir", str(tmp_path)])
+    assert "hopper-medium-replay" in capsys.readouterr().out
+    raw = bytearray(path.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    path.write_bytes(bytes(raw))
+    with pytest.raises(CorruptDatasetError, match="make point-random --size 2000 --force"):
+        datasets.load_dataset("point-random", 2000, 0, tmp_path)
+
+
+def test_unknown_and_missing_datasets_name_the_fix(tmp_path):
+    with pytest.raises(ValueError, match="valid names are .*hopper-medium"):
+        datasets.make_dataset("hopper-mediun")
+    with pytest.raises(FileNotFoundError, match="python -m proto_brax.datasets make point-expert"):
+        datasets.load_dataset("point-expert", None, 0, tmp_path)
+    with pytest.raises(FileNotFoundError, match="proto_brax.data.behavior --env hopper"):
+        g.list_snapshots("hopper", tmp_path)
