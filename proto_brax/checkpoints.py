@@ -46,15 +46,44 @@ def _json_default(x):
 
 
 def save(path: str | os.PathLike, tree: Any, metadata: dict[str, Any]) -> None:
-    """Save ``tree`` and ``metadata`` to directory ``path`` (replacing an older checkpoint there)."""
+    """Save ``tree`` and ``metadata`` to directory ``path``, replacing an older checkpoint there atomically.
+
+    Everything is written into a hidden sibling directory first and renamed into place, so a reader (or a resume after
+    SIGKILL) sees the old checkpoint or the new one, never a partial one.
+    """
     path = Path(path).absolute()
-    if path.exists():
-        shutil.rmtree(path)
-    path.mkdir(parents=True)
+    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
     ckptr = ocp.StandardCheckpointer()
-    ckptr.save(path / "state", jax.device_get(tree))
+    ckptr.save(tmp / "state", jax.device_get(tree))
     ckptr.wait_until_finished()
-    write_json_atomic(path / "metadata.json", {**metadata, "format_version": FORMAT_VERSION})
+    write_json_atomic(tmp / "metadata.json", {**metadata, "format_version": FORMAT_VERSION})
+    if path.exists():
+        old = path.parent / f".{path.name}.old-{os.getpid()}"
+        os.rename(path, old)
+        os.rename(tmp, path)
+        shutil.rmtree(old)
+    else:
+        os.rename(tmp, path)
+
+
+def save_step(root: str | os.PathLike, step: int, tree: Any, metadata: dict[str, Any], keep: int = 2) -> Path:
+    """Step-numbered checkpoint ``root/step_XXXXXXXX``; older ones beyond the newest ``keep`` are removed after the
+    new one is complete (a crash at any point leaves at least one complete checkpoint)."""
+    root = Path(root)
+    path = root / f"step_{step:08d}"
+    save(path, tree, {**metadata, "step": step})
+    for old in sorted(root.glob("step_*"))[:-keep]:
+        shutil.rmtree(old, ignore_errors=True)
+    return path
+
+
+def latest_step(root: str | os.PathLike) -> Path | None:
+    """The newest complete step checkpoint under ``root`` (None if there is none)."""
+    done = [p for p in sorted(Path(root).glob("step_*")) if (p / "metadata.json").exists()]
+    return done[-1] if done else None
 
 
 def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
@@ -88,4 +117,103 @@ def restore(path: str | os.PathLike, target: Any) -> tuple[Any, dict[str, Any]]:
             f"Could not restore {path}: {type(e).__name__}: {e}. The checkpoint is corrupt or was saved with a "
             "different network/env configuration; re-create it or match the configuration."
         ) from e
+    # orbax restores what was saved even where the target's shapes differ: check them ourselves.
+    got = jax.tree.map(lambda x: (tuple(x.shape), str(x.dtype)), tree)
+    want = jax.tree.map(lambda x: (tuple(x.shape), str(x.dtype)), abstract)
+    if got != want:
+        bad = [f"{jax.tree_util.keystr(k)}: saved {g}, expected {w}"
+               for (k, g), w in zip(jax.tree_util.tree_leaves_with_path(got, is_leaf=lambda x: isinstance(x, tuple)),
+                                    jax.tree.leaves(want, is_leaf=lambda x: isinstance(x, tuple))) if g != w]
+        raise CheckpointError(
+            f"Could not restore {path}: the checkpoint is corrupt or was saved with a different network/env "
+            f"configuration ({'; '.join(bad[:3])}{' …' if len(bad) > 3 else ''}); re-create it or match the "
+            "configuration."
+        )
     return tree, meta
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# Pretrained bundles: an OfflineState (leading seed axis) + metadata, for finetune-only runs
+
+BUNDLE_KIND = "pretrained-bundle"
+
+
+def save_bundle(path: str | os.PathLike, state: Any, metadata: dict[str, Any]) -> None:
+    """Save a pretrained bundle (actor, critics, target critics, value, optimizer states for every seed)."""
+    required = ("algo", "env", "obs_size", "act_size", "net", "seeds", "steps", "hparams")
+    missing = [k for k in required if k not in metadata]
+    if missing:
+        raise ValueError(f"Bundle metadata lacks {missing}.")
+    save(path, state, {**metadata, "kind": BUNDLE_KIND})
+
+
+def bundle_template(meta: dict[str, Any]):
+    """An OfflineState of the bundle's shapes (leading seed axis), built from its metadata alone."""
+    from proto_brax.algorithms.insample import OfflineHParams, init_offline_state
+    from proto_brax.networks import NetworkConfig, make_networks
+
+    net = NetworkConfig(**{**meta["net"], "hidden": tuple(meta["net"]["hidden"])})
+    nets = make_networks(net, meta["act_size"])
+    hp = OfflineHParams.create(**{k: v for k, v in meta["hparams"].items() if k in OfflineHParams.__dataclass_fields__})
+    keys = jax.random.split(jax.random.PRNGKey(0), len(meta["seeds"]))
+    init = lambda k: init_offline_state(k, nets, meta["obs_size"], meta["act_size"], hp,  # noqa: E731
+                                        with_value=meta["algo"] != "bc")
+    return jax.eval_shape(jax.vmap(init), keys)
+
+
+def load_bundle(path: str | os.PathLike) -> tuple[Any, dict[str, Any]]:
+    """Restore a bundle; a missing, corrupt or non-bundle directory raises CheckpointError naming the problem."""
+    meta = read_metadata(path)
+    if meta.get("kind") != BUNDLE_KIND:
+        raise CheckpointError(f"{path} is not a pretrained bundle (kind {meta.get('kind')!r}); "
+                              "create one with `python -m proto_brax.pretrain`.")
+    template = bundle_template(meta)
+    state, meta = restore(path, template)
+    return state, meta
+
+
+def validate_bundle(meta: dict[str, Any], env: str, obs_size: int, act_size: int, net) -> None:
+    """Fail with a message naming the mismatch between a bundle and the finetuning configuration."""
+    problems = []
+    if meta["env"] != env:
+        problems.append(f"env {meta['env']!r} (finetune: {env!r})")
+    if (meta["obs_size"], meta["act_size"]) != (obs_size, act_size):
+        problems.append(f"observation/action sizes {meta['obs_size']}/{meta['act_size']} (env: {obs_size}/{act_size})")
+    bnet = meta["net"]
+    if tuple(bnet["hidden"]) != tuple(net.hidden):
+        problems.append(f"hidden sizes {tuple(bnet['hidden'])} (finetune: {tuple(net.hidden)}; pass --hidden)")
+    for k in ("critic_layer_norm", "actor_layer_norm", "num_qs"):
+        if bnet[k] != getattr(net, k):
+            problems.append(f"{k} {bnet[k]} (finetune: {getattr(net, k)})")
+    if problems:
+        raise CheckpointError("The checkpoint does not match the finetuning configuration: " + "; ".join(problems))
+
+
+def _find_bundles(root: Path) -> list[Path]:
+    return sorted(p.parent for p in Path(root).rglob("metadata.json")
+                  if json.loads(p.read_text()).get("kind") == BUNDLE_KIND)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """python -m proto_brax.checkpoints list [ROOT] | show PATH"""
+    import sys
+
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] not in ("list", "show"):
+        raise SystemExit("usage: python -m proto_brax.checkpoints list [ROOT=checkpoints] | show PATH")
+    if argv[0] == "list":
+        root = Path(argv[1] if len(argv) > 1 else "checkpoints")
+        print(f"{'bundle':60s} {'algo':>5s} {'dataset':>26s} {'seeds':>5s} {'steps':>7s} {'offline score':>14s}")
+        for p in _find_bundles(root):
+            m = read_metadata(p)
+            score = m.get("offline_eval", {}).get("normalized_score_mean", float("nan"))
+            print(f"{str(p):60s} {m['algo']:>5s} {m.get('dataset', '?'):>26s} {len(m['seeds']):>5d} {m['steps']:>7d} "
+                  f"{score:>14.1f}")
+    else:
+        if len(argv) < 2:
+            raise SystemExit("usage: python -m proto_brax.checkpoints show PATH")
+        print(json.dumps(read_metadata(argv[1]), indent=2, sort_keys=True))
+
+
+if __name__ == "__main__":
+    main()

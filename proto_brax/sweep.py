@@ -57,16 +57,20 @@ class SweepArgs:
     """Env steps collected before the first update."""
     hidden: tuple[int, ...] = (256, 256)
     """Hidden layer sizes of actor and critics."""
-    critic_layer_norm: bool = True
-    """LayerNorm in the critics (paper: on, except halfcheetah)."""
+    critic_layer_norm: bool | None = None
+    """LayerNorm in the critics; default: on, except halfcheetah (paper)."""
     value_reg_backup: bool = True
     """PROTO penalty in the critic target (paper: off for AntMaze/Adroit)."""
     sampling: Literal["symmetric", "union", "online"] | None = None
     """Replay mixing; default: symmetric with a dataset, online without."""
     offline_fraction: float = 0.5
     """Share of each batch from the offline data in symmetric mode."""
-    dataset: Path | None = None
-    """Offline dataset file: our .npz, or a D4RL-format .hdf5."""
+    dataset: str | None = None
+    """Offline dataset: a registered name (e.g. hopper-medium, built with `python -m proto_brax.datasets make`) or a
+    file (our .npz, or a D4RL-format .hdf5)."""
+    checkpoint: Path | None = None
+    """Pretrained bundle (python -m proto_brax.pretrain) to finetune from: π₀ and Q₀. Without it, π₀ is random.
+    Bundle seeds map onto run seeds by value (else seed mod the bundle's seed count); one seed is broadcast."""
     hp: dict[str, float] = dataclasses.field(default_factory=dict)
     """Other traced hyper-parameters, e.g. --hp lr_actor 1e-4 gamma 0.995 (see proto_brax.config.HParams)."""
     out: Path = Path("runs/sweep")
@@ -75,6 +79,8 @@ class SweepArgs:
     """Replace an existing --out."""
     resume: bool = False
     """Continue the interrupted sweep in --out (same configuration)."""
+    report: bool = True
+    """Write the PNG report (learning curves, heat map, deviation, cost) into OUT/report."""
     devices: int | None = None
     """CPU only: host devices to shard the grid over (default: one per core)."""
 
@@ -88,24 +94,55 @@ def _finetune_config(args: SweepArgs):
         raise ValueError(f"--sampling {sampling} needs offline data: pass --dataset, or use --sampling online.")
     return FinetuneConfig(
         env=args.env, backend=args.backend, algo=ALGOS[args.algo],
-        net=NetworkConfig(hidden=tuple(args.hidden), critic_layer_norm=args.critic_layer_norm),
+        net=NetworkConfig(hidden=tuple(args.hidden), critic_layer_norm=(
+            args.env != "halfcheetah" if args.critic_layer_norm is None else args.critic_layer_norm)),
         steps=args.steps, eval_every=args.eval_every, eval_episodes=args.eval_episodes, batch_size=args.batch_size,
         learning_starts=args.learning_starts, sampling=sampling, offline_fraction=args.offline_fraction,
         value_reg_backup=args.value_reg_backup,
     )
 
 
-def _load_dataset(path: Path | None):
-    if path is None:
+def _load_dataset(name_or_path: str | None):
+    if name_or_path is None:
         return None, None
-    from proto_brax.data import dataset as ds
+    from proto_brax.datasets import load_dataset
 
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"Dataset file {path} does not exist.")
-    if path.suffix in (".hdf5", ".h5"):
-        return ds.load_d4rl_hdf5(path)
-    return ds.load_npz(path)
+    if not Path(name_or_path).suffix and "-" in str(name_or_path):
+        return load_dataset(name_or_path)
+    if not Path(name_or_path).exists():
+        raise FileNotFoundError(f"Dataset file {name_or_path} does not exist.")
+    return load_dataset(Path(name_or_path))
+
+
+def _load_checkpoint(path: Path | None, cfg, grid):
+    """(pretrained, per_run, metadata): one bundle seed is shared by all runs; several are gathered per run."""
+    if path is None:
+        return None, False, None
+    import jax.numpy as jnp
+
+    from proto_brax import checkpoints
+    from proto_brax.algorithms.learner import Pretrained
+    from proto_brax.envs import make_env
+
+    env = make_env(cfg.env, cfg.backend)
+    meta = checkpoints.read_metadata(path)
+    if meta.get("kind") != checkpoints.BUNDLE_KIND:
+        raise checkpoints.CheckpointError(f"{path} is not a pretrained bundle: create one with "
+                                          "`python -m proto_brax.pretrain`.")
+    checkpoints.validate_bundle(meta, cfg.env, env.observation_size, env.action_size, cfg.net)
+    state, meta = checkpoints.load_bundle(path)
+    pre = Pretrained(actor=state.actor, critic=state.critic)
+    seeds = list(meta["seeds"])
+    if len(seeds) == 1:
+        return jax_tree_index(pre, 0), False, meta
+    idx = [seeds.index(s) if s in seeds else s % len(seeds) for s in grid.seeds]
+    return jax_tree_index(pre, jnp.asarray(idx)), True, meta
+
+
+def jax_tree_index(tree, idx):
+    import jax
+
+    return jax.tree.map(lambda x: x[idx], tree)
 
 
 def _prepare_out(args: SweepArgs, config: dict) -> None:
@@ -198,11 +235,13 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     base = {"anneal_horizon": float(args.anneal_horizon or args.steps), **args.hp}
     grid = make_grid(axes, list(args.seeds), base=base)  # validated before anything compiles
     dataset, dmeta = _load_dataset(args.dataset)
+    pretrained, per_run, bmeta = _load_checkpoint(args.checkpoint, cfg, grid)
     sweep_cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
-                 if k not in ("out", "overwrite", "resume", "devices")}
+                 if k not in ("out", "overwrite", "resume", "devices", "report")}
     sweep_cfg = json.loads(json.dumps(sweep_cfg))  # tuples -> lists, as config.json stores them
     config = {"sweep": sweep_cfg, "finetune": dataclasses.asdict(cfg), "grid": list(grid.points),
-              "dataset_metadata": dmeta}
+              "dataset_metadata": dmeta,
+              "checkpoint_metadata": bmeta}
     _prepare_out(args, config)
 
     import jax
@@ -228,9 +267,11 @@ def run_sweep(args: SweepArgs) -> list[dict]:
           f"{[d.platform for d in mesh.devices.flat]}; {cfg.steps} steps per run", flush=True)
 
     def restore(state):
-        if not args.resume or not (out / "state" / "metadata.json").exists():
+        latest = checkpoints.latest_step(out / "state") if args.resume else None
+        if latest is None:
+            _truncate_metrics(metrics_path, 0)  # nothing checkpointed yet: start over, dropping any logged rows
             return state, 0
-        state, meta = checkpoints.restore(out / "state", state)
+        state, meta = checkpoints.restore(latest, state)
         _truncate_metrics(metrics_path, meta["chunks_done"])
         print(f"resumed after chunk {meta['chunks_done']} of {cfg.num_chunks}", flush=True)
         bar.update(meta["chunks_done"] * cfg.eval_every)
@@ -248,14 +289,15 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         rows = _rows(c, m, grid, cfg.env, updates_per_s)
         with open(metrics_path, "a") as f:
             f.writelines(json.dumps(r) + "\n" for r in rows)
-        checkpoints.save(out / "state", state, {"chunks_done": c + 1, "version": __version__})
+        checkpoints.save_step(out / "state", c + 1, state, {"chunks_done": c + 1, "version": __version__})
         finite = [r["eval_return"] for r in rows if np.isfinite(r["eval_return"])]
         bar.set_postfix(eval=f"{np.mean(finite) if finite else float('nan'):.1f}", upd_s=f"{updates_per_s:.0f}")
         bar.update(cfg.eval_every)
         timing["t"] = time.time()
 
-    program = compile_grid(ft, mesh)
-    run_grid(ft, grid, None, dataset, mesh=mesh, program=program, callback=on_chunk, restore=restore)
+    program = compile_grid(ft, mesh, per_run)
+    run_grid(ft, grid, pretrained, dataset, mesh=mesh, program=program, callback=on_chunk, restore=restore,
+             per_run_pretrained=per_run)
     bar.close()
     rows = [json.loads(line) for line in metrics_path.read_text().splitlines() if line]
     grid_keys = [k for k in axes if len(axes[k]) > 1] or ["tau"]
@@ -265,7 +307,12 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         "first_chunk_seconds_incl_compile": timing["first"],
     })
     print_table(summary, grid_keys)
-    print(f"\nwrote {out}/config.json, metrics.jsonl ({len(rows)} rows), summary.json")
+    if args.report:
+        from proto_brax.report import make_report
+
+        make_report([out], out / "report", verbose=False)
+    print(f"\nwrote {out}/config.json, metrics.jsonl ({len(rows)} rows), summary.json"
+          + (", report/ (PNG plots)" if args.report else ""))
     return summary
 
 

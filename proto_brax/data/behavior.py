@@ -61,8 +61,11 @@ def train_behavior(args: Args) -> list[dict]:
     state = jax.jit(ft.init, static_argnums=())(hp, jax.random.PRNGKey(args.seed), None, None)
     resume = Path(args.resume_dir) / args.env
     start_chunk = 0
-    if (resume / "metadata.json").exists():
-        state, meta = checkpoints.restore(resume, state)
+    latest = checkpoints.latest_step(resume)
+    if latest is None and (resume / "metadata.json").exists():  # runs started before step-numbered resumes
+        latest = resume
+    if latest is not None:
+        state, meta = checkpoints.restore(latest, state)
         start_chunk = meta["chunks_done"]
         print(f"[{args.env}] resuming after chunk {start_chunk} ({start_chunk * cfg.eval_every} steps)", flush=True)
     chunk = jax.jit(ft.chunk, donate_argnums=(0,))
@@ -82,7 +85,7 @@ def train_behavior(args: Args) -> list[dict]:
             "config": {"finetune": dataclasses.asdict(cfg), "hparams": SAC_SCRATCH}, "version": __version__,
         }
         checkpoints.save(snapshot_dir(args.out, cfg.env, step), state.learner.actor, rec)
-        checkpoints.save(resume, state, {"chunks_done": c + 1, "env": cfg.env})
+        checkpoints.save_step(resume, c + 1, state, {"chunks_done": c + 1, "env": cfg.env}, keep=1)
         print(f"[{cfg.env}] step {step} eval {rec['eval_return_mean']:.1f} train {rec['train_return']:.1f} "
               f"({rec['steps_per_second']:.0f} steps/s)", flush=True)
         log.append(rec)

@@ -123,13 +123,15 @@ class GridProgram:
     chunk: Callable  # (state[G], hparams[G], dataset, start) -> (state[G], metrics[G])
 
 
-def compile_grid(ft, mesh: Mesh) -> GridProgram:
+def compile_grid(ft, mesh: Mesh, per_run_pretrained: bool = False) -> GridProgram:
     """jit(vmap) of init and chunk with explicit shardings: grid-batched values split over ``mesh``, the dataset,
-    the pretrained bundle and the chunk's start step replicated. Fixing the output shardings keeps every chunk call
+    the pretrained bundle (unless it holds one entry per run) and the chunk's start step replicated. Fixing the output shardings keeps every chunk call
     on the first compilation (an inferred sharding that differed between init's and chunk's outputs would recompile).
     """
     g, r = NamedSharding(mesh, P("grid")), NamedSharding(mesh, P())
-    init = jax.jit(jax.vmap(ft.init, in_axes=(0, 0, None, None)), in_shardings=(g, g, r, r), out_shardings=g)
+    pre_axis, pre_sharding = (0, g) if per_run_pretrained else (None, r)
+    init = jax.jit(jax.vmap(ft.init, in_axes=(0, 0, pre_axis, None)), in_shardings=(g, g, pre_sharding, r),
+                   out_shardings=g)
     # The state (with its replay buffers) is donated: each chunk updates it in place instead of copying it.
     chunk = jax.jit(jax.vmap(ft.chunk, in_axes=(0, 0, None, None)), in_shardings=(g, g, r, r),
                     out_shardings=(g, g), donate_argnums=(0,))
@@ -139,20 +141,25 @@ def compile_grid(ft, mesh: Mesh) -> GridProgram:
 def run_grid(
     ft, grid: Grid, pretrained=None, dataset=None, mesh: Mesh | None = None,
     program: GridProgram | None = None, callback: Callable[[int, dict, Any], None] | None = None,
-    restore: Callable[[Any], tuple[Any, int]] | None = None,
+    restore: Callable[[Any], tuple[Any, int]] | None = None, per_run_pretrained: bool = False,
 ):
     """Run every point of ``grid`` to the end in one compiled program, sharded over ``mesh``.
 
     Returns (final state, metrics with leaves [chunks run, grid.size, ...]) with the padding runs removed.
+    ``pretrained`` is shared by every run, or (``per_run_pretrained``) has a leading axis of grid.size entries.
     ``callback(chunk_index, metrics, state)`` sees each chunk's host metrics and the (padded, sharded) state, e.g. to
     log and checkpoint; ``restore(initial_state) -> (state, chunks_done)`` resumes an interrupted run.
     """
     mesh = mesh or grid_mesh()
-    program = program or compile_grid(ft, mesh)
+    program = program or compile_grid(ft, mesh, per_run_pretrained)
     size = padded_size(grid.size, mesh)
     hp = shard(pad_leading(grid.hparams, size), mesh)
     keys = shard(pad_leading(seed_keys(grid.seeds), size), mesh)
-    shared = replicate((pretrained, dataset), mesh)
+    if per_run_pretrained:
+        pretrained = shard(pad_leading(pretrained, size), mesh)
+    else:
+        pretrained = replicate(pretrained, mesh)
+    shared = (pretrained, replicate(dataset, mesh))
     state = program.init(hp, keys, *shared)
     start = 0
     if restore is not None:

@@ -1,0 +1,131 @@
+"""Pretrained bundles: bit-exact save/restore, finetune from restored == from memory, clear errors; the CLIs."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+
+import jax
+import numpy as np
+import pytest
+
+from proto_brax import checkpoints, pretrain, sweep
+from proto_brax.algorithms.learner import Pretrained
+from proto_brax.data.dataset import save_npz
+from proto_brax.networks import NetworkConfig
+from test_engine import SCRATCH, TINY, finetune_fn, point_dataset
+
+ARGS = dict(algo="eql", seeds=(0, 1), steps=400, log_every=200, batch_size=32, hidden=(32, 32), eval_episodes=2,
+            hp={"lr_actor": 1e-3, "alpha": 0.5})
+
+
+@pytest.fixture(scope="module")
+def bundle(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bundle")
+    data_file = root / "point-noisy.npz"
+    save_npz(data_file, jax.device_get(point_dataset()), {"env": "point", "kind": "noisy-expert"})
+    meta = pretrain.pretrain(pretrain.PretrainArgs(dataset=str(data_file), out=root / "eql", **ARGS))
+    return root, data_file, meta
+
+
+def test_bundle_round_trip_is_bit_exact(bundle):
+    root, _, meta = bundle
+    state, meta2 = checkpoints.load_bundle(root / "eql")
+    assert meta2["algo"] == "eql" and meta2["seeds"] == [0, 1] and meta2["env"] == "point"
+    assert {"returns_per_seed", "normalized_score_mean"} <= set(meta2["offline_eval"])
+    assert state.actor_opt is not None and state.value is not None
+    # save again from the restored state and restore: identical leaves (params and optimizer state)
+    checkpoints.save_bundle(root / "copy", state, {k: v for k, v in meta2.items() if k != "format_version"})
+    again, _ = checkpoints.load_bundle(root / "copy")
+    jax.tree.map(np.testing.assert_array_equal, state, again)
+    counts = jax.tree.leaves(state.actor_opt)
+    assert any(np.asarray(c).dtype == np.int32 and np.all(np.asarray(c) == 400) for c in counts)  # Adam step count
+
+
+def test_finetune_from_restored_bundle_equals_in_memory(bundle):
+    root, data_file, _ = bundle
+    state, _ = checkpoints.load_bundle(root / "eql")
+    cfg = dataclasses.replace(TINY, sampling="symmetric", steps=400, eval_every=200)
+    ft, single = finetune_fn(cfg)
+    hp = jax.tree.map(lambda x: x, __import__("proto_brax.config", fromlist=["HParams"]).HParams.create(**SCRATCH))
+    restored = Pretrained(actor=jax.tree.map(lambda x: x[1], state.actor), critic=jax.tree.map(lambda x: x[1],
+                                                                                                 state.critic))
+    in_memory = jax.tree.map(lambda x: np.array(x), restored)  # an independent host copy
+    a = single(hp, jax.random.PRNGKey(0), restored, point_dataset())[1]
+    b = single(hp, jax.random.PRNGKey(0), Pretrained(**{k: jax.tree.map(jax.numpy.asarray, v) for k, v in
+                                                         vars(in_memory).items()}), point_dataset())[1]
+    jax.tree.map(np.testing.assert_array_equal, a, b)
+
+
+def test_mismatched_checkpoint_is_rejected_with_the_reason(bundle):
+    root, _, meta = bundle
+    cfg = dataclasses.replace(TINY, net=NetworkConfig(hidden=(64, 64)))
+    with pytest.raises(checkpoints.CheckpointError, match=r"hidden sizes \(32, 32\)"):
+        checkpoints.validate_bundle(meta | {"format_version": 1}, cfg.env, 4, 2, cfg.net)
+    with pytest.raises(checkpoints.CheckpointError, match="env 'point' \\(finetune: 'hopper'\\)"):
+        checkpoints.validate_bundle(meta, "hopper", 11, 3, NetworkConfig(hidden=(32, 32)))
+
+
+def test_corrupt_or_missing_checkpoint_gives_clear_error(bundle, tmp_path):
+    root, _, _ = bundle
+    with pytest.raises(checkpoints.CheckpointError, match="No checkpoint at"):
+        checkpoints.load_bundle(tmp_path / "nothing")
+    bad = tmp_path / "bad"
+    shutil.copytree(root / "eql", bad)
+    (bad / "metadata.json").write_text("{not json")
+    with pytest.raises(checkpoints.CheckpointError, match="Corrupt metadata"):
+        checkpoints.load_bundle(bad)
+    shutil.rmtree(bad)
+    shutil.copytree(root / "eql", bad)
+    meta = json.loads((bad / "metadata.json").read_text())
+    meta["net"]["hidden"] = [16, 16]  # arrays no longer match what the metadata promises
+    (bad / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(checkpoints.CheckpointError, match="corrupt or was saved with a different"):
+        checkpoints.load_bundle(bad)
+
+
+def test_sweep_finetune_only_from_bundle(bundle, tmp_path, capsys):
+    root, data_file, _ = bundle
+    args = sweep.SweepArgs(env="point", checkpoint=root / "eql", dataset=str(data_file), tau=(0.005,), eta=(0.9,),
+                           seeds=(0, 1, 2), steps=400, eval_every=200, eval_episodes=2, hidden=(32, 32),
+                           batch_size=32, learning_starts=64, out=tmp_path / "sw", hp=dict(SCRATCH, alpha0=1.0))
+    summary = sweep.run_sweep(args)
+    cfg = json.loads((tmp_path / "sw" / "config.json").read_text())
+    assert cfg["checkpoint_metadata"]["algo"] == "eql"
+    assert summary[0]["final_eval_return"]["n"] == 3
+    rows = [json.loads(x) for x in (tmp_path / "sw" / "metrics.jsonl").read_text().splitlines()]
+    assert all(np.isfinite(r["eval_return"]) for r in rows)
+    bad = sweep.SweepArgs(env="point", checkpoint=root / "eql", hidden=(64, 64), out=tmp_path / "bad")
+    with pytest.raises(checkpoints.CheckpointError, match="hidden sizes"):
+        sweep.run_sweep(bad)
+    assert not (tmp_path / "bad").exists()
+
+
+def test_checkpoints_cli_lists_bundles(bundle, capsys):
+    root, _, _ = bundle
+    checkpoints.main(["list", str(root)])
+    out = capsys.readouterr().out
+    assert "eql" in out and "point-noisy" in out
+    checkpoints.main(["show", str(root / "eql")])
+    assert '"algo": "eql"' in capsys.readouterr().out
+
+
+def test_interrupted_save_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
+    tree = {"w": np.arange(4.0, dtype=np.float32)}
+    checkpoints.save(tmp_path / "c", tree, {"n": 1})
+
+    def boom(*a, **k):
+        raise KeyboardInterrupt("killed mid-save")
+
+    monkeypatch.setattr(checkpoints, "write_json_atomic", boom)
+    with pytest.raises(KeyboardInterrupt):
+        checkpoints.save(tmp_path / "c", {"w": np.zeros(4, np.float32)}, {"n": 2})
+    monkeypatch.undo()
+    restored, meta = checkpoints.restore(tmp_path / "c", tree)
+    assert meta["n"] == 1
+    np.testing.assert_array_equal(restored["w"], tree["w"])
+    for step in (1, 2, 3):
+        checkpoints.save_step(tmp_path / "steps", step, tree, {"n": step})
+    assert [p.name for p in sorted((tmp_path / "steps").glob("step_*"))] == ["step_00000002", "step_00000003"]
+    assert checkpoints.latest_step(tmp_path / "steps").name == "step_00000003"
