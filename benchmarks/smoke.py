@@ -36,11 +36,8 @@ def main() -> int:
     from proto_brax.checkpoints import write_json_atomic
 
     with tempfile.TemporaryDirectory() as tmp:
-        sargs = sweep.SweepArgs(
-            env=args.env, tau=(0.0, 0.005), eta=(0.9,), alpha0=(0.0, 2.0), seeds=(0, 1), steps=args.steps,
-            eval_every=args.eval_every, eval_episodes=2, hidden=(32, 32), batch_size=32, learning_starts=100,
-            out=Path(tmp) / "sweep",
-        )
+        sargs = sweep.parse_args(["--preset", "smoke", "--env", args.env, "--steps", str(args.steps),
+                                  "--eval-every", str(args.eval_every), "--out", str(Path(tmp) / "sweep")])
         t0 = time.time()
         summary = sweep.run_sweep(sargs)
         seconds = time.time() - t0

@@ -61,6 +61,8 @@ class SweepArgs:
     """LayerNorm in the critics; default: on, except halfcheetah (paper)."""
     value_reg_backup: bool = True
     """PROTO penalty in the critic target (paper: off for AntMaze/Adroit)."""
+    clipped_double_q: bool = True
+    """Min over the critic ensemble in backups (paper: off for AntMaze)."""
     sampling: Literal["symmetric", "union", "online"] | None = None
     """Replay mixing; default: symmetric with a dataset, online without."""
     offline_fraction: float = 0.5
@@ -68,6 +70,8 @@ class SweepArgs:
     dataset: str | None = None
     """Offline dataset: a registered name (e.g. hopper-medium, built with `python -m proto_brax.datasets make`) or a
     file (our .npz, or a D4RL-format .hdf5)."""
+    dataset_size: int | None = None
+    """Transitions of a registered dataset (default: its full size); a missing one is built into the cache first."""
     checkpoint: Path | None = None
     """Pretrained bundle (python -m proto_brax.pretrain) to finetune from: π₀ and Q₀. Without it, π₀ is random.
     Bundle seeds map onto run seeds by value (else seed mod the bundle's seed count); one seed is broadcast."""
@@ -98,20 +102,27 @@ def _finetune_config(args: SweepArgs):
             args.env != "halfcheetah" if args.critic_layer_norm is None else args.critic_layer_norm)),
         steps=args.steps, eval_every=args.eval_every, eval_episodes=args.eval_episodes, batch_size=args.batch_size,
         learning_starts=args.learning_starts, sampling=sampling, offline_fraction=args.offline_fraction,
-        value_reg_backup=args.value_reg_backup,
+        value_reg_backup=args.value_reg_backup, clipped_double_q=args.clipped_double_q,
     )
 
 
-def _load_dataset(name_or_path: str | None):
+def _load_dataset(name_or_path: str | None, size: int | None = None):
     if name_or_path is None:
         return None, None
-    from proto_brax.datasets import load_dataset
+    from proto_brax import datasets
+    from proto_brax.data.generate import dataset_names
 
-    if not Path(name_or_path).suffix and "-" in str(name_or_path):
-        return load_dataset(name_or_path)
+    if name_or_path in dataset_names():
+        if not datasets.dataset_path(name_or_path, size).exists():
+            print(f"dataset {name_or_path} is not cached: building it "
+                  f"(= {datasets.rebuild_command(name_or_path, size, 0).replace(' --force', '')})", flush=True)
+            datasets.cmd_make(datasets.Make(name=name_or_path, size=size))
+        return datasets.load_dataset(name_or_path, size)
+    if not Path(name_or_path).suffix and "-" in name_or_path:
+        return datasets.load_dataset(name_or_path, size)  # raises: unknown name, listing the valid ones
     if not Path(name_or_path).exists():
         raise FileNotFoundError(f"Dataset file {name_or_path} does not exist.")
-    return load_dataset(Path(name_or_path))
+    return datasets.load_dataset(Path(name_or_path))
 
 
 def _load_checkpoint(path: Path | None, cfg, grid):
@@ -234,7 +245,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     axes = {"tau": list(args.tau), "eta": list(args.eta), "alpha0": list(args.alpha0)}
     base = {"anneal_horizon": float(args.anneal_horizon or args.steps), **args.hp}
     grid = make_grid(axes, list(args.seeds), base=base)  # validated before anything compiles
-    dataset, dmeta = _load_dataset(args.dataset)
+    dataset, dmeta = _load_dataset(args.dataset, args.dataset_size)
     pretrained, per_run, bmeta = _load_checkpoint(args.checkpoint, cfg, grid)
     sweep_cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
                  if k not in ("out", "overwrite", "resume", "devices", "report")}
@@ -316,10 +327,39 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     return summary
 
 
-def main(argv: list[str] | None = None) -> None:
+PRESETS: dict[str, tuple[str, dict]] = {
+    "smoke": ("tiny CPU smoke sweep on the point task (seconds)", dict(
+        env="point", tau=(0.0, 0.005), eta=(0.9,), alpha0=(0.0, 2.0), seeds=(0, 1), steps=1_000, eval_every=500,
+        eval_episodes=2, hidden=(32, 32), batch_size=32, learning_starts=100)),
+    "paper-mujoco": ("PROTO paper, MuJoCo: τ 5e-3, η 0.9, α₀ 2, 10⁶ steps annealed over 10⁶, 5 seeds, eval 10 × 5k", dict(
+        tau=(5e-3,), eta=(0.9,), alpha0=(2.0,), seeds=(0, 1, 2, 3, 4), steps=1_000_000, eval_every=5_000,
+        eval_episodes=10, anneal_horizon=1e6, learning_starts=1_000)),
+    "paper-mujoco-100k": ("reduced-scale paper-mujoco: 10⁵ steps, α annealed over the same fraction (N = 10⁵)", dict(
+        tau=(5e-3,), eta=(0.9,), alpha0=(2.0,), seeds=(0, 1, 2, 3, 4), steps=100_000, eval_every=5_000,
+        eval_episodes=10, anneal_horizon=1e5, learning_starts=1_000)),
+}
+
+
+def parse_args(argv: list[str] | None = None) -> SweepArgs:
+    """tyro CLI; ``--preset NAME`` (first) sets the defaults that the other flags then override."""
     import tyro
 
-    args = tyro.cli(SweepArgs, args=argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    defaults = SweepArgs()
+    if "--preset" in argv:
+        i = argv.index("--preset")
+        if i + 1 >= len(argv) or argv[i + 1] not in PRESETS:
+            names = ", ".join(f"{k} ({v[0]})" for k, v in PRESETS.items())
+            raise SystemExit(f"--preset needs one of: {names}")
+        defaults = dataclasses.replace(defaults, **PRESETS[argv[i + 1]][1])
+        del argv[i:i + 2]
+    presets = "; ".join(f"{k}: {v[0]}" for k, v in PRESETS.items())
+    return tyro.cli(SweepArgs, default=defaults, args=argv,
+                    description=f"{SweepArgs.__doc__} Presets (--preset NAME, before other flags): {presets}.")
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
     # Before JAX initializes its backend: host devices for sharding on CPU, and the scheduler fix MJX needs.
     from proto_brax import envs
     from proto_brax.train.grid import use_host_devices

@@ -86,3 +86,12 @@ def test_bad_input_fails_before_compiling(tmp_path, kw, match):
     with pytest.raises((ValueError, FileNotFoundError), match=match):
         sweep.run_sweep(args)
     assert not (tmp_path / "o").exists()  # nothing written
+
+
+def test_presets_set_defaults_that_flags_override():
+    args = sweep.parse_args(["--preset", "paper-mujoco", "--env", "walker2d", "--seeds", "0"])
+    assert args.tau == (5e-3,) and args.eta == (0.9,) and args.alpha0 == (2.0,) and args.steps == 1_000_000
+    assert args.anneal_horizon == 1e6 and args.env == "walker2d" and args.seeds == (0,)
+    assert sweep.parse_args(["--steps", "2000", "--preset", "smoke"]).steps == 2000
+    with pytest.raises(SystemExit, match="--preset needs one of"):
+        sweep.parse_args(["--preset", "paper-mujocoo"])
