@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from proto_brax import sweep
@@ -95,3 +96,25 @@ def test_presets_set_defaults_that_flags_override():
     assert sweep.parse_args(["--steps", "2000", "--preset", "smoke"]).steps == 2000
     with pytest.raises(SystemExit, match="--preset needs one of"):
         sweep.parse_args(["--preset", "paper-mujocoo"])
+
+
+def test_diverged_run_is_marked_while_others_continue():
+    from test_engine import SCRATCH, TINY, finetune_fn
+
+    from proto_brax.train.grid import make_grid, run_grid
+
+    ft, _ = finetune_fn(TINY)
+    grid = make_grid({"lr_critic": [1e-3, 1e9]}, seeds=[0], base=SCRATCH)
+    _, m = run_grid(ft, grid)
+    rows = [r for c in range(TINY.num_chunks) for r in sweep._rows(c, jax_tree_chunk(m, c), grid, "point", 0.0)]
+    good = [r for r in rows if r["lr_critic"] == 1e-3]
+    bad = [r for r in rows if r["lr_critic"] == 1e9]
+    assert not any(r["diverged"] for r in good) and all(np.isfinite(r["eval_return"]) for r in good)
+    assert any(r["diverged"] for r in bad)
+    summary = sweep.summarize_runs(rows, ["lr_critic"])
+    by = {s["lr_critic"]: s for s in summary}
+    assert by[1e9]["diverged_seeds"] == [0] and by[1e-3]["diverged_seeds"] == []
+
+
+def jax_tree_chunk(m, c):
+    return {k: v[c] for k, v in m.items()}
