@@ -99,7 +99,8 @@ def update(
         log_alpha_sac=log_alpha_sac,
         alpha_opt=alpha_opt,
     )
-    return learner, {**c_info, **a_info, "temperature_loss": t_loss, "alpha_sac": jnp.exp(log_alpha_sac)}
+    return learner, {**c_info, **a_info, "temperature_loss": t_loss, "alpha_sac": jnp.exp(log_alpha_sac),
+                     "actor_updates": jnp.ones(())}
 
 
 def act(nets: Networks, actor, obs: jax.Array, key: jax.Array, hp: HParams, deterministic: bool) -> jax.Array:

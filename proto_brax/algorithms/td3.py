@@ -79,11 +79,11 @@ def update(
             critic_target=polyak(learner.critic, learner.critic_target, hp.target_tau),
             pibar=polyak(actor, learner.pibar, hp.tau) if cfg.regularizer else learner.pibar,
         )
-        return learner, a_info
+        return learner, {**a_info, "actor_updates": jnp.ones(())}
 
     def skip(learner):
         zero = jnp.zeros(())
-        return learner, {"actor_loss": zero, "kl_pibar": zero, "lambda": zero}
+        return learner, {"actor_loss": zero, "kl_pibar": zero, "lambda": zero, "actor_updates": zero}
 
     learner, a_info = lax.cond(step % cfg.policy_delay == 0, actor_step, skip, learner)
     return learner, {**c_info, **a_info}

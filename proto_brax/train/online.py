@@ -35,6 +35,8 @@ from proto_brax.train.evaluate import run_episodes
 
 ALGORITHMS = {"sac": sac, "td3": td3}
 
+ACTOR_METRICS = ("actor_loss", "kl_pibar", "lambda", "entropy")
+
 # Incremented each time a chunk function is traced (tests assert that chunks do not re-trace).
 TRACE_COUNT = {"chunk": 0}
 
@@ -127,9 +129,12 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
         TRACE_COUNT["chunk"] += 1
         ts = start + jnp.arange(cfg.eval_every)
         state, (stats, updated) = lax.scan(lambda s, t: train_step(s, t, hp, dataset), state, ts)
+        # Means over the steps that updated; actor metrics over the steps that updated the actor (TD3's delay).
         n_upd = jnp.maximum(jnp.sum(updated), 1.0)
-        metrics = {k: jnp.sum(v) / n_upd for k, v in stats.items() if k not in ("alpha", "episodes",
-                                                                                 "episode_return_sum")}
+        n_act = jnp.maximum(jnp.sum(stats["actor_updates"]), 1.0)
+        host_keys = ("alpha", "episodes", "episode_return_sum", "actor_updates")
+        metrics = {k: jnp.sum(v) / (n_act if k in ACTOR_METRICS else n_upd) for k, v in stats.items()
+                   if k not in host_keys}
         episodes = jnp.sum(stats["episodes"])
         key, k_eval, k_batch, k_dev1, k_dev2 = jax.random.split(state.key, 5)
         returns = evaluate(state.learner.actor, k_eval)
