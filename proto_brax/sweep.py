@@ -83,6 +83,8 @@ class SweepArgs:
     """Replace an existing --out."""
     resume: bool = False
     """Continue the interrupted sweep in --out (same configuration)."""
+    tensorboard: bool = False
+    """Also write TensorBoard event files (OUT/tensorboard/run_XXX; needs `pip install proto_brax[tensorboard]`)."""
     report: bool = True
     """Write the PNG report (learning curves, heat map, deviation, cost) into OUT/report."""
     devices: int | None = None
@@ -194,6 +196,27 @@ def _rows(chunk: int, m: dict, grid, env: str, updates_per_s: float) -> list[dic
     return rows
 
 
+def _tensorboard_writers(out: Path, grid):
+    try:
+        from tensorboardX import SummaryWriter
+    except ImportError as e:
+        raise ImportError("--tensorboard needs tensorboardX: pip install 'proto_brax[tensorboard]'") from e
+    writers = []
+    for i, point in enumerate(grid.points):
+        w = SummaryWriter(str(out / "tensorboard" / f"run_{i:03d}"))
+        w.add_text("hparams", json.dumps(point))
+        writers.append(w)
+    return writers
+
+
+def _write_tensorboard(writers, rows: list[dict]) -> None:
+    for r in rows:
+        for k, v in r.items():
+            if isinstance(v, float) and k not in ("tau", "eta", "alpha0", "anneal_horizon"):
+                writers[r["run"]].add_scalar(k, v, r["step"])
+        writers[r["run"]].flush()
+
+
 def _truncate_metrics(path: Path, chunks_done: int) -> None:
     """Drop rows of chunks that were logged but not checkpointed (a crash between the two): they are re-run."""
     if not path.exists():
@@ -248,7 +271,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     dataset, dmeta = _load_dataset(args.dataset, args.dataset_size)
     pretrained, per_run, bmeta = _load_checkpoint(args.checkpoint, cfg, grid)
     sweep_cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
-                 if k not in ("out", "overwrite", "resume", "devices", "report")}
+                 if k not in ("out", "overwrite", "resume", "devices", "report", "tensorboard")}
     sweep_cfg = json.loads(json.dumps(sweep_cfg))  # tuples -> lists, as config.json stores them
     config = {"sweep": sweep_cfg, "finetune": dataclasses.asdict(cfg), "grid": list(grid.points),
               "dataset_metadata": dmeta,
@@ -288,6 +311,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         bar.update(meta["chunks_done"] * cfg.eval_every)
         return state, meta["chunks_done"]
 
+    tb = _tensorboard_writers(out, grid) if args.tensorboard else None
     bar = tqdm(total=cfg.steps, unit="step", desc="sweep", dynamic_ncols=True, file=sys.stdout)
     timing = {"t": time.time(), "first": None}
 
@@ -300,6 +324,8 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         rows = _rows(c, m, grid, cfg.env, updates_per_s)
         with open(metrics_path, "a") as f:
             f.writelines(json.dumps(r) + "\n" for r in rows)
+        if tb is not None:
+            _write_tensorboard(tb, rows)
         checkpoints.save_step(out / "state", c + 1, state, {"chunks_done": c + 1, "version": __version__})
         finite = [r["eval_return"] for r in rows if np.isfinite(r["eval_return"])]
         bar.set_postfix(eval=f"{np.mean(finite) if finite else float('nan'):.1f}", upd_s=f"{updates_per_s:.0f}")
@@ -310,6 +336,9 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     run_grid(ft, grid, pretrained, dataset, mesh=mesh, program=program, callback=on_chunk, restore=restore,
              per_run_pretrained=per_run)
     bar.close()
+    if tb is not None:
+        for w in tb:
+            w.close()
     rows = [json.loads(line) for line in metrics_path.read_text().splitlines() if line]
     grid_keys = [k for k in axes if len(axes[k]) > 1] or ["tau"]
     summary = summarize_runs(rows, grid_keys)

@@ -118,3 +118,19 @@ def test_diverged_run_is_marked_while_others_continue():
 
 def jax_tree_chunk(m, c):
     return {k: v[c] for k, v in m.items()}
+
+
+def test_tensorboard_event_files_hold_the_metrics(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    args = sweep.parse_args(["--preset", "smoke", "--tau", "0.005", "--alpha0", "2.0", "--seeds", "0",
+                             "--tensorboard", "--no-report", "--out", str(tmp_path / "tb")])
+    sweep.run_sweep(args)
+    runs = sorted((tmp_path / "tb" / "tensorboard").iterdir())
+    assert [p.name for p in runs] == ["run_000"]
+    acc = EventAccumulator(str(runs[0]))
+    acc.Reload()
+    rows = [json.loads(x) for x in (tmp_path / "tb" / "metrics.jsonl").read_text().splitlines()]
+    got = [e.value for e in acc.Scalars("eval_return")]
+    np.testing.assert_allclose(got, [r["eval_return"] for r in rows], rtol=1e-6)
+    assert [e.step for e in acc.Scalars("eval_return")] == [r["step"] for r in rows]
