@@ -87,6 +87,10 @@ class SweepArgs:
     """Also write TensorBoard event files (OUT/tensorboard/run_XXX; needs `pip install proto_brax[tensorboard]`)."""
     report: bool = True
     """Write the PNG report (learning curves, heat map, deviation, cost) into OUT/report."""
+    distributed: bool = False
+    """Multi-host: call jax.distributed.initialize() (coordinator from the cluster's environment, e.g. SLURM or
+    JAX_COORDINATOR_ADDRESS/JAX_NUM_PROCESSES/JAX_PROCESS_ID) and shard the grid over every process's devices;
+    process 0 writes the outputs."""
     devices: int | None = None
     """CPU only: host devices to shard the grid over (default: one per core)."""
 
@@ -271,14 +275,18 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     dataset, dmeta = _load_dataset(args.dataset, args.dataset_size)
     pretrained, per_run, bmeta = _load_checkpoint(args.checkpoint, cfg, grid)
     sweep_cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
-                 if k not in ("out", "overwrite", "resume", "devices", "report", "tensorboard")}
+                 if k not in ("out", "overwrite", "resume", "devices", "report", "tensorboard", "distributed")}
     sweep_cfg = json.loads(json.dumps(sweep_cfg))  # tuples -> lists, as config.json stores them
     config = {"sweep": sweep_cfg, "finetune": dataclasses.asdict(cfg), "grid": list(grid.points),
               "dataset_metadata": dmeta,
               "checkpoint_metadata": bmeta}
-    _prepare_out(args, config)
-
     import jax
+
+    lead = jax.process_index() == 0  # with --distributed, process 0 writes; the others compute their shards
+    if lead:
+        _prepare_out(args, config)
+    if jax.process_count() > 1 and args.resume:
+        raise ValueError("--resume is not supported across several processes yet: resume on one host.")
     from tqdm import tqdm
 
     from proto_brax import __version__, checkpoints
@@ -311,7 +319,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         bar.update(meta["chunks_done"] * cfg.eval_every)
         return state, meta["chunks_done"]
 
-    tb = _tensorboard_writers(out, grid) if args.tensorboard else None
+    tb = _tensorboard_writers(out, grid) if args.tensorboard and lead else None
     bar = tqdm(total=cfg.steps, unit="step", desc="sweep", dynamic_ncols=True, file=sys.stdout)
     timing = {"t": time.time(), "first": None}
 
@@ -322,20 +330,25 @@ def run_sweep(args: SweepArgs) -> list[dict]:
             timing["first"] = dt  # includes compilation
         updates_per_s = float(np.sum(m["updates"])) / dt
         rows = _rows(c, m, grid, cfg.env, updates_per_s)
+        bar.update(cfg.eval_every)
+        timing["t"] = time.time()
+        if not lead:
+            return
         with open(metrics_path, "a") as f:
             f.writelines(json.dumps(r) + "\n" for r in rows)
         if tb is not None:
             _write_tensorboard(tb, rows)
-        checkpoints.save_step(out / "state", c + 1, state, {"chunks_done": c + 1, "version": __version__})
+        if jax.process_count() == 1:  # across hosts the state is not gathered to one place: no resume checkpoints
+            checkpoints.save_step(out / "state", c + 1, state, {"chunks_done": c + 1, "version": __version__})
         finite = [r["eval_return"] for r in rows if np.isfinite(r["eval_return"])]
         bar.set_postfix(eval=f"{np.mean(finite) if finite else float('nan'):.1f}", upd_s=f"{updates_per_s:.0f}")
-        bar.update(cfg.eval_every)
-        timing["t"] = time.time()
 
     program = compile_grid(ft, mesh, per_run)
     run_grid(ft, grid, pretrained, dataset, mesh=mesh, program=program, callback=on_chunk, restore=restore,
              per_run_pretrained=per_run)
     bar.close()
+    if not lead:
+        return []
     if tb is not None:
         for w in tb:
             w.close()
@@ -395,7 +408,12 @@ def main(argv: list[str] | None = None) -> None:
 
     if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":
         os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
-    use_host_devices(args.devices)
+    if args.distributed:
+        import jax
+
+        jax.distributed.initialize()
+    else:
+        use_host_devices(args.devices)
     run_sweep(args)
 
 

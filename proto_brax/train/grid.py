@@ -99,6 +99,15 @@ def seed_keys(seeds: np.ndarray) -> jax.Array:
     return jax.vmap(jax.random.PRNGKey)(jnp.asarray(seeds, jnp.uint32))
 
 
+def host_gather(tree):
+    """Bring a grid-sharded pytree to the host; across processes (``jax.distributed``) every process gets all of it."""
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        return multihost_utils.process_allgather(tree, tiled=True)
+    return jax.device_get(tree)
+
+
 def use_host_devices(n: int | None = None) -> int:
     """Expose ``n`` (default: one per core) CPU devices so a grid can be sharded across cores.
 
@@ -168,7 +177,7 @@ def run_grid(
     for c in range(start, ft.cfg.num_chunks):
         start_step = replicate(jnp.asarray(c * ft.cfg.eval_every, jnp.int32), mesh)
         state, m = program.chunk(state, hp, shared[1], start_step)
-        m = jax.tree.map(lambda x: np.asarray(x)[: grid.size], jax.device_get(m))
+        m = jax.tree.map(lambda x: np.asarray(x)[: grid.size], host_gather(m))
         if callback is not None:
             callback(c, m, state)
         history.append(m)
