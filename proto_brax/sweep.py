@@ -75,6 +75,10 @@ class SweepArgs:
     checkpoint: Path | None = None
     """Pretrained bundle (python -m proto_brax.pretrain) to finetune from: π₀ and Q₀. Without it, π₀ is random.
     Bundle seeds map onto run seeds by value (else seed mod the bundle's seed count); one seed is broadcast."""
+    pretrain: Literal["eql", "sql", "iql", "bc"] | None = None
+    """Pretrain on --dataset first (one bundle seed per sweep seed, saved in OUT/pretrained), then finetune from it."""
+    pretrain_steps: int = 100_000
+    """Gradient steps of --pretrain."""
     hp: dict[str, float] = dataclasses.field(default_factory=dict)
     """Other traced hyper-parameters, e.g. --hp lr_actor 1e-4 gamma 0.995 (see proto_brax.config.HParams)."""
     out: Path = Path("runs/sweep")
@@ -273,6 +277,8 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     base = {"anneal_horizon": float(args.anneal_horizon or args.steps), **args.hp}
     grid = make_grid(axes, list(args.seeds), base=base)  # validated before anything compiles
     dataset, dmeta = _load_dataset(args.dataset, args.dataset_size)
+    if args.pretrain is not None and (args.dataset is None or args.checkpoint is not None):
+        raise ValueError("--pretrain needs --dataset (the data to pretrain on) and no --checkpoint.")
     pretrained, per_run, bmeta = _load_checkpoint(args.checkpoint, cfg, grid)
     sweep_cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
                  if k not in ("out", "overwrite", "resume", "devices", "report", "tensorboard", "distributed")}
@@ -285,6 +291,20 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     lead = jax.process_index() == 0  # with --distributed, process 0 writes; the others compute their shards
     if lead:
         _prepare_out(args, config)
+    if args.pretrain is not None:
+        from proto_brax.checkpoints import write_json_atomic
+        from proto_brax.pretrain import PretrainArgs, pretrain
+
+        bundle = Path(args.out) / "pretrained"
+        if not (bundle / "metadata.json").exists():  # a resumed sweep reuses the bundle it made
+            pretrain(PretrainArgs(dataset=args.dataset, algo=args.pretrain, env=args.env, seeds=tuple(args.seeds),
+                                  steps=args.pretrain_steps, log_every=min(10_000, args.pretrain_steps),
+                                  hidden=tuple(args.hidden), critic_layer_norm=cfg.net.critic_layer_norm,
+                                  out=bundle, overwrite=True))
+        pretrained, per_run, bmeta = _load_checkpoint(bundle, cfg, grid)
+        config["checkpoint_metadata"] = bmeta
+        if lead:
+            write_json_atomic(Path(args.out) / "config.json", config)
     if jax.process_count() > 1 and args.resume:
         raise ValueError("--resume is not supported across several processes yet: resume on one host.")
     from tqdm import tqdm
@@ -360,6 +380,9 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         "first_chunk_seconds_incl_compile": timing["first"],
     })
     print_table(summary, grid_keys)
+    steady = [r["grid_updates_per_s"] for r in rows if r["chunk"] > 0]
+    print(f"\ncompile + first chunk: {timing['first'] or float('nan'):.1f} s; steady throughput "
+          f"{np.mean(steady) if steady else float('nan'):.0f} updates/s over the grid")
     if args.report:
         from proto_brax.report import make_report
 

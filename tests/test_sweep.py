@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -134,3 +135,22 @@ def test_tensorboard_event_files_hold_the_metrics(tmp_path):
     got = [e.value for e in acc.Scalars("eval_return")]
     np.testing.assert_allclose(got, [r["eval_return"] for r in rows], rtol=1e-6)
     assert [e.step for e in acc.Scalars("eval_return")] == [r["step"] for r in rows]
+
+
+def test_pretrain_then_finetune_in_one_command(tmp_path):
+    from proto_brax.data.dataset import save_npz
+    from test_engine import point_dataset
+
+    import jax
+
+    data = tmp_path / "pt.npz"
+    save_npz(data, jax.device_get(point_dataset()), {"env": "point"})
+    args = sweep.parse_args(["--preset", "smoke", "--tau", "0.005", "--alpha0", "1.0", "--seeds", "0", "1",
+                             "--dataset", str(data), "--pretrain", "bc", "--pretrain-steps", "300",
+                             "--no-report", "--out", str(tmp_path / "o")])
+    sweep.run_sweep(args)
+    cfg = json.loads((tmp_path / "o" / "config.json").read_text())
+    assert cfg["checkpoint_metadata"]["algo"] == "bc" and cfg["checkpoint_metadata"]["seeds"] == [0, 1]
+    assert (tmp_path / "o" / "pretrained" / "metadata.json").exists()
+    with pytest.raises(ValueError, match="--pretrain needs --dataset"):
+        sweep.run_sweep(dataclasses.replace(args, dataset=None, out=tmp_path / "x"))
