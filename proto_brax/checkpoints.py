@@ -174,6 +174,9 @@ def load_bundle(path: str | os.PathLike) -> tuple[Any, dict[str, Any]]:
 
 def validate_bundle(meta: dict[str, Any], env: str, obs_size: int, act_size: int, net) -> None:
     """Fail with a message naming the mismatch between a bundle and the finetuning configuration."""
+    if meta.get("kind") != BUNDLE_KIND:
+        raise CheckpointError(f"Not a pretrained bundle (kind {meta.get('kind')!r}): create one with "
+                              "`python -m proto_brax.pretrain`.")
     problems = []
     if meta["env"] != env:
         problems.append(f"env {meta['env']!r} (finetune: {env!r})")

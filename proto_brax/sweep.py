@@ -67,14 +67,15 @@ class SweepArgs:
     """Replay mixing; default: symmetric with a dataset, online without."""
     offline_fraction: float = 0.5
     """Share of each batch from the offline data in symmetric mode."""
-    dataset: str | None = None
-    """Offline dataset: a registered name (e.g. hopper-medium, built with `python -m proto_brax.datasets make`) or a
-    file (our .npz, or a D4RL-format .hdf5)."""
-    dataset_size: int | None = None
-    """Transitions of a registered dataset (default: its full size); a missing one is built into the cache first."""
-    checkpoint: Path | None = None
-    """Pretrained bundle (python -m proto_brax.pretrain) to finetune from: π₀ and Q₀. Without it, π₀ is random.
-    Bundle seeds map onto run seeds by value (else seed mod the bundle's seed count); one seed is broadcast."""
+    dataset: str | None = "auto"
+    """Offline data: a registered name (e.g. hopper-medium; built into the cache if missing), a file (our .npz, or a
+    D4RL-format .hdf5), 'auto' = ENV-medium, or 'none' (online data only)."""
+    dataset_size: int | None = 100_000
+    """Transitions of a registered dataset (the paper's D4RL sets have 10⁶: pass 1000000); built if missing."""
+    checkpoint: str = "auto"
+    """Pretrained bundle (python -m proto_brax.pretrain) to finetune from (π₀ and Q₀): a path; 'auto' = the committed
+    checkpoints/pretrained/DATASET/eql when it exists (else a random π₀); 'none' = a random π₀. Bundle seeds map onto
+    run seeds by value (else seed mod the bundle's seed count); a one-seed bundle is broadcast."""
     pretrain: Literal["eql", "sql", "iql", "bc"] | None = None
     """Pretrain on --dataset first (one bundle seed per sweep seed, saved in OUT/pretrained), then finetune from it."""
     pretrain_steps: int = 100_000
@@ -103,8 +104,9 @@ def _finetune_config(args: SweepArgs):
     from proto_brax.config import FinetuneConfig
     from proto_brax.networks import NetworkConfig
 
-    sampling = args.sampling or ("symmetric" if args.dataset is not None else "online")
-    if sampling != "online" and args.dataset is None:
+    dataset = resolve_dataset(args)
+    sampling = args.sampling or ("symmetric" if dataset is not None else "online")
+    if sampling != "online" and dataset is None:
         raise ValueError(f"--sampling {sampling} needs offline data: pass --dataset, or use --sampling online.")
     return FinetuneConfig(
         env=args.env, backend=args.backend, algo=ALGOS[args.algo],
@@ -135,6 +137,34 @@ def _load_dataset(name_or_path: str | None, size: int | None = None):
     return datasets.load_dataset(Path(name_or_path))
 
 
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def resolve_dataset(args: SweepArgs) -> str | None:
+    """'none' -> None; 'auto' -> ENV-medium when registered; else the given name or path."""
+    from proto_brax.data.generate import dataset_names
+
+    if args.dataset in (None, "none"):
+        return None
+    if args.dataset == "auto":
+        name = f"{args.env}-medium"
+        return name if name in dataset_names() else None
+    return args.dataset
+
+
+def resolve_checkpoint(args: SweepArgs) -> Path | None:
+    """'none' -> None; 'auto' -> the committed EQL bundle of the dataset if there is one; else the given path."""
+    if args.checkpoint == "none":
+        return None
+    if args.checkpoint == "auto":
+        dataset = resolve_dataset(args)
+        if dataset is None or Path(dataset).suffix:
+            return None
+        auto = REPO_ROOT / "checkpoints" / "pretrained" / dataset / "eql"
+        return auto if (auto / "metadata.json").exists() else None
+    return Path(args.checkpoint)
+
+
 def _load_checkpoint(path: Path | None, cfg, grid):
     """(pretrained, per_run, metadata): one bundle seed is shared by all runs; several are gathered per run."""
     if path is None:
@@ -146,11 +176,8 @@ def _load_checkpoint(path: Path | None, cfg, grid):
     from proto_brax.envs import make_env
 
     env = make_env(cfg.env, cfg.backend)
-    meta = checkpoints.read_metadata(path)
-    if meta.get("kind") != checkpoints.BUNDLE_KIND:
-        raise checkpoints.CheckpointError(f"{path} is not a pretrained bundle: create one with "
-                                          "`python -m proto_brax.pretrain`.")
-    checkpoints.validate_bundle(meta, cfg.env, env.observation_size, env.action_size, cfg.net)
+    checkpoints.validate_bundle(checkpoints.read_metadata(path), cfg.env, env.observation_size, env.action_size,
+                                cfg.net)
     state, meta = checkpoints.load_bundle(path)
     pre = Pretrained(actor=state.actor, critic=state.critic)
     seeds = list(meta["seeds"])
@@ -166,24 +193,31 @@ def jax_tree_index(tree, idx):
     return jax.tree.map(lambda x: x[idx], tree)
 
 
-def _prepare_out(args: SweepArgs, config: dict) -> None:
+def _check_out(args: SweepArgs, sweep_cfg: dict) -> None:
+    """Refuse an existing --out unless --resume (same configuration) or --overwrite; writes nothing."""
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         if args.resume:
             old = json.loads((out / "config.json").read_text())
-            if old["sweep"] != config["sweep"]:
-                diff = {k: (old["sweep"].get(k), v) for k, v in config["sweep"].items() if old["sweep"].get(k) != v}
+            if old["sweep"] != sweep_cfg:
+                diff = {k: (old["sweep"].get(k), v) for k, v in sweep_cfg.items() if old["sweep"].get(k) != v}
                 raise ValueError(f"--resume: the configuration differs from the one in {out}: {diff}.")
-            return
-        if not args.overwrite:
+        elif not args.overwrite:
             raise FileExistsError(f"{out} exists: pass --resume to continue it, --overwrite to replace it, "
                                   "or choose another --out.")
-        shutil.rmtree(out)
     elif args.resume:
         raise FileNotFoundError(f"--resume: nothing to resume in {out}.")
-    out.mkdir(parents=True, exist_ok=True)
+
+
+def _prepare_out(args: SweepArgs, config: dict) -> None:
     from proto_brax.checkpoints import write_json_atomic
 
+    out = Path(args.out)
+    if args.resume:
+        return
+    if out.exists() and args.overwrite:
+        shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "config.json", config)
 
 
@@ -276,13 +310,23 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     axes = {"tau": list(args.tau), "eta": list(args.eta), "alpha0": list(args.alpha0)}
     base = {"anneal_horizon": float(args.anneal_horizon or args.steps), **args.hp}
     grid = make_grid(axes, list(args.seeds), base=base)  # validated before anything compiles
-    dataset, dmeta = _load_dataset(args.dataset, args.dataset_size)
-    if args.pretrain is not None and (args.dataset is None or args.checkpoint is not None):
-        raise ValueError("--pretrain needs --dataset (the data to pretrain on) and no --checkpoint.")
-    pretrained, per_run, bmeta = _load_checkpoint(args.checkpoint, cfg, grid)
     sweep_cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
                  if k not in ("out", "overwrite", "resume", "devices", "report", "tensorboard", "distributed")}
     sweep_cfg = json.loads(json.dumps(sweep_cfg))  # tuples -> lists, as config.json stores them
+    _check_out(args, sweep_cfg)
+    dataset_name = resolve_dataset(args)
+    ckpt = resolve_checkpoint(args)
+    if args.pretrain is not None and (dataset_name is None or args.checkpoint not in ("auto", "none")):
+        raise ValueError("--pretrain needs --dataset (the data to pretrain on) and no --checkpoint.")
+    if ckpt is not None and not args.pretrain:  # validate the bundle before building or loading any data
+        from proto_brax import checkpoints
+        from proto_brax.envs import make_env
+
+        env = make_env(cfg.env, cfg.backend)
+        checkpoints.validate_bundle(checkpoints.read_metadata(ckpt), cfg.env, env.observation_size,
+                                    env.action_size, cfg.net)
+    dataset, dmeta = _load_dataset(dataset_name, args.dataset_size)
+    pretrained, per_run, bmeta = _load_checkpoint(None if args.pretrain else ckpt, cfg, grid)
     config = {"sweep": sweep_cfg, "finetune": dataclasses.asdict(cfg), "grid": list(grid.points),
               "dataset_metadata": dmeta,
               "checkpoint_metadata": bmeta}
@@ -297,7 +341,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
 
         bundle = Path(args.out) / "pretrained"
         if not (bundle / "metadata.json").exists():  # a resumed sweep reuses the bundle it made
-            pretrain(PretrainArgs(dataset=args.dataset, algo=args.pretrain, env=args.env, seeds=tuple(args.seeds),
+            pretrain(PretrainArgs(dataset=dataset_name, algo=args.pretrain, env=args.env, seeds=tuple(args.seeds),
                                   steps=args.pretrain_steps, log_every=min(10_000, args.pretrain_steps),
                                   hidden=tuple(args.hidden), critic_layer_norm=cfg.net.critic_layer_norm,
                                   out=bundle, overwrite=True))
@@ -319,7 +363,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         from proto_brax.envs import make_env
 
         env = make_env(cfg.env, cfg.backend)
-        validate_for_env(dataset, env.observation_size, env.action_size, str(args.dataset), env_name=cfg.env)
+        validate_for_env(dataset, env.observation_size, env.action_size, str(dataset_name), env_name=cfg.env)
         dataset = jax.tree.map(jax.numpy.asarray, dataset)
     mesh = grid_mesh()
     out = Path(args.out)
@@ -394,7 +438,8 @@ def run_sweep(args: SweepArgs) -> list[dict]:
 
 PRESETS: dict[str, tuple[str, dict]] = {
     "smoke": ("tiny CPU smoke sweep on the point task (seconds)", dict(
-        env="point", tau=(0.0, 0.005), eta=(0.9,), alpha0=(0.0, 2.0), seeds=(0, 1), steps=1_000, eval_every=500,
+        env="point", dataset="none", tau=(0.0, 0.005), eta=(0.9,), alpha0=(0.0, 2.0), seeds=(0, 1), steps=1_000,
+        eval_every=500,
         eval_episodes=2, hidden=(32, 32), batch_size=32, learning_starts=100)),
     "paper-mujoco": ("PROTO paper, MuJoCo: τ 5e-3, η 0.9, α₀ 2, 10⁶ steps annealed over 10⁶, 5 seeds, eval 10 × 5k", dict(
         tau=(5e-3,), eta=(0.9,), alpha0=(2.0,), seeds=(0, 1, 2, 3, 4), steps=1_000_000, eval_every=5_000,
@@ -416,7 +461,7 @@ def parse_args(argv: list[str] | None = None) -> SweepArgs:
         if i + 1 >= len(argv) or argv[i + 1] not in PRESETS:
             names = ", ".join(f"{k} ({v[0]})" for k, v in PRESETS.items())
             raise SystemExit(f"--preset needs one of: {names}")
-        defaults = dataclasses.replace(defaults, **PRESETS[argv[i + 1]][1])
+        defaults = dataclasses.replace(SweepArgs(), **PRESETS[argv[i + 1]][1])
         del argv[i:i + 2]
     presets = "; ".join(f"{k}: {v[0]}" for k, v in PRESETS.items())
     return tyro.cli(SweepArgs, default=defaults, args=argv,

@@ -59,10 +59,13 @@ def test_finetune_from_restored_bundle_equals_in_memory(bundle):
 
 
 def test_mismatched_checkpoint_is_rejected_with_the_reason(bundle):
-    root, _, meta = bundle
+    root, _, _ = bundle
+    meta = checkpoints.read_metadata(root / "eql")
     cfg = dataclasses.replace(TINY, net=NetworkConfig(hidden=(64, 64)))
     with pytest.raises(checkpoints.CheckpointError, match=r"hidden sizes \(32, 32\)"):
-        checkpoints.validate_bundle(meta | {"format_version": 1}, cfg.env, 4, 2, cfg.net)
+        checkpoints.validate_bundle(meta, cfg.env, 4, 2, cfg.net)
+    with pytest.raises(checkpoints.CheckpointError, match="Not a pretrained bundle"):
+        checkpoints.validate_bundle({**meta, "kind": None}, cfg.env, 4, 2, cfg.net)
     with pytest.raises(checkpoints.CheckpointError, match="env 'point' \\(finetune: 'hopper'\\)"):
         checkpoints.validate_bundle(meta, "hopper", 11, 3, NetworkConfig(hidden=(32, 32)))
 
@@ -87,7 +90,7 @@ def test_corrupt_or_missing_checkpoint_gives_clear_error(bundle, tmp_path):
 
 def test_sweep_finetune_only_from_bundle(bundle, tmp_path, capsys):
     root, data_file, _ = bundle
-    args = sweep.SweepArgs(env="point", checkpoint=root / "eql", dataset=str(data_file), tau=(0.005,), eta=(0.9,),
+    args = sweep.SweepArgs(env="point", checkpoint=str(root / "eql"), dataset=str(data_file), tau=(0.005,), eta=(0.9,),
                            seeds=(0, 1, 2), steps=400, eval_every=200, eval_episodes=2, hidden=(32, 32),
                            batch_size=32, learning_starts=64, out=tmp_path / "sw", hp=dict(SCRATCH, alpha0=1.0))
     summary = sweep.run_sweep(args)
@@ -96,7 +99,7 @@ def test_sweep_finetune_only_from_bundle(bundle, tmp_path, capsys):
     assert summary[0]["final_eval_return"]["n"] == 3
     rows = [json.loads(x) for x in (tmp_path / "sw" / "metrics.jsonl").read_text().splitlines()]
     assert all(np.isfinite(r["eval_return"]) for r in rows)
-    bad = sweep.SweepArgs(env="point", checkpoint=root / "eql", hidden=(64, 64), out=tmp_path / "bad")
+    bad = sweep.SweepArgs(env="point", checkpoint=str(root / "eql"), hidden=(64, 64), out=tmp_path / "bad")
     with pytest.raises(checkpoints.CheckpointError, match="hidden sizes"):
         sweep.run_sweep(bad)
     assert not (tmp_path / "bad").exists()

@@ -16,7 +16,7 @@ import pytest
 
 from proto_brax import sweep
 
-TINY = ["--env", "point", "--hidden", "32", "32", "--batch-size", "32", "--learning-starts", "64",
+TINY = ["--env", "point", "--dataset", "none", "--hidden", "32", "32", "--batch-size", "32", "--learning-starts", "64",
         "--eval-episodes", "2", "--tau", "0", "0.01", "--eta", "0.9", "--seeds", "0", "1"]
 
 
@@ -65,7 +65,7 @@ def test_sigkill_then_resume_matches_uninterrupted(tmp_path):
 def test_existing_out_is_refused_without_resume_or_overwrite(tmp_path):
     (tmp_path / "x").mkdir()
     (tmp_path / "x" / "config.json").write_text("{}")
-    args = sweep.SweepArgs(env="point", out=tmp_path / "x")
+    args = sweep.SweepArgs(env="point", dataset="none", out=tmp_path / "x")
     with pytest.raises(FileExistsError, match="--resume .* --overwrite"):
         sweep.run_sweep(args)
 
@@ -78,7 +78,7 @@ def test_existing_out_is_refused_without_resume_or_overwrite(tmp_path):
         (dict(alpha0=()), "grid is empty"),
         (dict(seeds=(0, 0)), "Duplicate seeds"),
         (dict(env="hoper"), "Unknown env"),
-        (dict(sampling="symmetric"), "needs offline data"),
+        (dict(sampling="symmetric", dataset="none"), "needs offline data"),
         (dict(dataset="/nonexistent.npz"), "does not exist"),
         (dict(dataset="hopper-mediun"), "Unknown dataset"),
     ],
@@ -154,3 +154,14 @@ def test_pretrain_then_finetune_in_one_command(tmp_path):
     assert (tmp_path / "o" / "pretrained" / "metadata.json").exists()
     with pytest.raises(ValueError, match="--pretrain needs --dataset"):
         sweep.run_sweep(dataclasses.replace(args, dataset=None, out=tmp_path / "x"))
+
+
+def test_auto_dataset_and_checkpoint_resolution():
+    args = sweep.SweepArgs(env="walker2d")
+    assert sweep.resolve_dataset(args) == "walker2d-medium"
+    assert sweep.resolve_dataset(dataclasses.replace(args, dataset="none")) is None
+    assert sweep.resolve_checkpoint(dataclasses.replace(args, checkpoint="none")) is None
+    assert sweep.resolve_checkpoint(dataclasses.replace(args, env="point")) is None  # no committed point bundle
+    hm = sweep.resolve_checkpoint(sweep.SweepArgs())
+    committed = sweep.REPO_ROOT / "checkpoints" / "pretrained" / "hopper-medium" / "eql"
+    assert hm == (committed if (committed / "metadata.json").exists() else None)
