@@ -1,4 +1,5 @@
-"""``python -m proto_brax.datasets``: D4RL-style offline datasets generated reproducibly from committed behaviour policies.
+"""``python -m proto_brax.datasets``: D4RL-style offline datasets, generated reproducibly from committed behaviour
+policies.
 
 Kinds (per env, D4RL's definitions adapted to the suite's own SAC runs, ``checkpoints/behavior/<env>/``):
 
@@ -103,7 +104,7 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     shares[-1] += per_env - sum(shares)
     parts = []
     bar = tqdm(total=total, unit="tr", desc=name, disable=not progress, dynamic_ncols=True)
-    for i, ((label, policy, info), steps) in enumerate(zip(policies, shares)):
+    for i, ((_, policy, info), steps) in enumerate(zip(policies, shares)):
         segment = next(d for d in (1000, 500, 250, 200, 100, 50, 25, 10, 5, 2, 1) if steps % d == 0)
         part = g.rollouts(env, spec.episode_length, policy, jax.random.fold_in(key, i), num_envs, steps, segment, bar)
         parts.append(part)
@@ -238,7 +239,8 @@ def cmd_references(a: References) -> dict:
     det = lambda obs, k: jnp.tanh(nets.actor.apply(params, obs)[0])  # noqa: E731
     out = {}
     for label, pol in (("random", g.uniform_policy(env.action_size)), ("expert", det)):
-        ret = jax.jit(lambda k: run_episodes(env, spec.episode_length, pol, k, a.episodes))(jax.random.PRNGKey(a.seed))
+        episodes = jax.jit(lambda k, pol=pol: run_episodes(env, spec.episode_length, pol, k, a.episodes))
+        ret = episodes(jax.random.PRNGKey(a.seed))
         ret = np.asarray(ret)
         out[label] = {"mean": float(ret.mean()), "std": float(ret.std()), "episodes": a.episodes}
         print(f"{a.env} {label}: mean {ret.mean():.2f} ± {ret.std():.2f} over {a.episodes} episodes"

@@ -441,7 +441,7 @@ PRESETS: dict[str, tuple[str, dict]] = {
         env="point", dataset="none", tau=(0.0, 0.005), eta=(0.9,), alpha0=(0.0, 2.0), seeds=(0, 1), steps=1_000,
         eval_every=500,
         eval_episodes=2, hidden=(32, 32), batch_size=32, learning_starts=100)),
-    "paper-mujoco": ("PROTO paper, MuJoCo: τ 5e-3, η 0.9, α₀ 2, 10⁶ steps annealed over 10⁶, 5 seeds, eval 10 × 5k", dict(
+    "paper-mujoco": ("PROTO paper, MuJoCo: τ 5e-3, η 0.9, α₀ 2, 10⁶ steps annealed over 10⁶, 5 seeds, eval 10×5k", dict(
         tau=(5e-3,), eta=(0.9,), alpha0=(2.0,), seeds=(0, 1, 2, 3, 4), steps=1_000_000, eval_every=5_000,
         eval_episodes=10, anneal_horizon=1e6, learning_starts=1_000)),
     "paper-mujoco-100k": ("reduced-scale paper-mujoco: 10⁵ steps, α annealed over the same fraction (N = 10⁵)", dict(

@@ -83,7 +83,7 @@ def test_point_references():
     env = envs.make_env("point")
     spec = envs.get_spec("point")
     for pol, ref in ((uniform_policy(2), spec.ref_random), (expert_policy, spec.ref_expert)):
-        ret = jax.jit(lambda k: run_episodes(env, 50, pol, k, 100))(jax.random.PRNGKey(123))
+        ret = jax.jit(lambda k, pol=pol: run_episodes(env, 50, pol, k, 100))(jax.random.PRNGKey(123))
         assert abs(float(ret.mean()) - ref) < 0.05
     np.testing.assert_allclose(envs.normalized_score("point", [spec.ref_random, spec.ref_expert]), [0.0, 100.0])
 

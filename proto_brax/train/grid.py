@@ -134,8 +134,9 @@ class GridProgram:
 
 def compile_grid(ft, mesh: Mesh, per_run_pretrained: bool = False) -> GridProgram:
     """jit(vmap) of init and chunk with explicit shardings: grid-batched values split over ``mesh``, the dataset,
-    the pretrained bundle (unless it holds one entry per run) and the chunk's start step replicated. Fixing the output shardings keeps every chunk call
-    on the first compilation (an inferred sharding that differed between init's and chunk's outputs would recompile).
+    the pretrained bundle (unless it holds one entry per run) and the chunk's start step replicated. Fixing the
+    output shardings keeps every chunk call on the first compilation (an inferred sharding that differed between
+    init's and chunk's outputs would recompile).
     """
     g, r = NamedSharding(mesh, P("grid")), NamedSharding(mesh, P())
     pre_axis, pre_sharding = (0, g) if per_run_pretrained else (None, r)

@@ -92,7 +92,7 @@ def run_pretrain(pre: Pretrain, hp: OfflineHParams, seeds, dataset: OfflineDatas
     state = init(hp, keys)
     history = []
     for c in range(pre.cfg.steps // pre.cfg.log_every):
-        ck = jax.vmap(lambda k: jax.random.fold_in(k, c + 1))(keys)
+        ck = jax.vmap(jax.random.fold_in, in_axes=(0, None))(keys, c + 1)
         state, m = chunk(state, hp, dataset, ck)
         m = jax.device_get(m)
         history.append(m)
