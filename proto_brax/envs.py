@@ -7,16 +7,19 @@ Every task is a Brax ``Env``. We do our own time limit and auto-reset (instead o
   ``terminal = 0``; only the environment's own termination (e.g. the hopper falling) sets ``terminal = 1``;
 * brax's auto-reset restarts every episode from the same cached first state; we draw a fresh initial state per episode.
 
-Default backends were chosen from measured control steps/s at batch 1 on the project's 2-core CPU (shared/FACTS.md,
-re-measured by ``benchmarks/throughput.py``): one env step must stay small beside one SAC update (~5 ms), so the most
-accurate backend that costs under ~10% of an update is the default.
+Default backends were chosen from control steps/s at batch 1 on the project's 2-core CPU: one env step must stay small
+beside one SAC update (~6 ms), so the default is the most accurate backend that costs well under 10% of an update.
+Columns: shared/FACTS.md's measurements (random actions, lax.scan); "ours" = measured here for the default backend with
+our stepping (time limit + a fresh reset every step), 2000-step scan, 2026-11-22.
 
-| env         | generalized | positional | spring | mjx  | default     |
-|-------------|-------------|------------|--------|------|-------------|
-| hopper      | 3.7k        | 6.3k       | 21k    | 2.1k | generalized |
-| walker2d    | 1.8k        | 5.7k       | 16k    | 1.4k | positional  |
-| halfcheetah | 0.7k        | 1.1k       | 4.6k   | 0.6k | positional  |
-| ant         | 2.4k        | 2.4k       | 8.6k   | 2.4k | generalized |
+| env         | generalized | positional | spring | mjx  | default     | ours (plain / with reset) |
+|-------------|-------------|------------|--------|------|-------------|---------------------------|
+| hopper      | 3.7k        | 6.3k       | 21k    | 2.1k | generalized | 3.9k / 3.3k               |
+| walker2d    | 1.8k        | 5.7k       | 16k    | 1.4k | positional  | 7.4k / 4.2k               |
+| halfcheetah | 0.7k        | 1.1k       | 4.6k   | 0.6k | positional  | 1.2k / 1.2k               |
+| ant         | 2.4k        | 2.4k       | 8.6k   | 2.4k | generalized | 2.2k / 1.7k               |
+
+Spring is fastest but the crudest contact model; positional is used where generalized costs over ~0.5 ms a step.
 """
 
 from __future__ import annotations
