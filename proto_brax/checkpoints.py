@@ -197,13 +197,42 @@ def _find_bundles(root: Path) -> list[Path]:
                   if json.loads(p.read_text()).get("kind") == BUNDLE_KIND)
 
 
+def index_markdown(root: Path) -> str:
+    """A markdown index of the bundles and behaviour snapshots under ``root`` (checkpoints/INDEX.md)."""
+    lines = ["# Committed checkpoints", "", "Regenerate with `python -m proto_brax.checkpoints index`.", "",
+             "## Pretrained bundles", "", "| bundle | algo | dataset | seeds | steps | offline return | normalized |",
+             "|---|---|---|---|---|---|---|"]
+    for p in _find_bundles(root):
+        m = read_metadata(p)
+        ev = m.get("offline_eval", {})
+        ret, score = ev.get("return_mean", float("nan")), ev.get("normalized_score_mean", float("nan"))
+        lines.append(f"| `{p.relative_to(root)}` | {m['algo']} | {m.get('dataset', '?')} | {m['seeds']} | {m['steps']} "
+                     f"| {ret:.1f} | {score:.1f} |")
+    lines += ["", "## Behaviour-policy snapshots (SAC from scratch)", "",
+              "| env | snapshots | steps | final eval return |", "|---|---|---|---|"]
+    for env_dir in sorted((Path(root) / "behavior").glob("*")):
+        snaps = sorted(env_dir.glob("step_*/metadata.json"))
+        if snaps:
+            last = json.loads(snaps[-1].read_text())
+            lines.append(f"| {env_dir.name} | {len(snaps)} | {last['step']} | {last['eval_return_mean']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> None:
-    """python -m proto_brax.checkpoints list [ROOT] | show PATH"""
+    """python -m proto_brax.checkpoints list [ROOT] | show PATH | index [ROOT]"""
     import sys
 
     argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] not in ("list", "show"):
-        raise SystemExit("usage: python -m proto_brax.checkpoints list [ROOT=checkpoints] | show PATH")
+    if not argv or argv[0] not in ("list", "show", "index"):
+        raise SystemExit("usage: python -m proto_brax.checkpoints list [ROOT=checkpoints] | show PATH | index [ROOT]")
+    if argv[0] == "index":
+        root = Path(argv[1] if len(argv) > 1 else "checkpoints")
+        text = index_markdown(root)
+        tmp = root / ".INDEX.md.tmp"
+        tmp.write_text(text)
+        os.replace(tmp, root / "INDEX.md")
+        print(text)
+        return
     if argv[0] == "list":
         root = Path(argv[1] if len(argv) > 1 else "checkpoints")
         print(f"{'bundle':60s} {'algo':>5s} {'dataset':>26s} {'seeds':>5s} {'steps':>7s} {'offline score':>14s}")

@@ -112,6 +112,9 @@ def test_checkpoints_cli_lists_bundles(bundle, capsys):
     assert "eql" in out and "point-noisy" in out
     checkpoints.main(["show", str(root / "eql")])
     assert '"algo": "eql"' in capsys.readouterr().out
+    checkpoints.main(["index", str(root)])
+    index = (root / "INDEX.md").read_text()
+    assert "| `eql` | eql | point-noisy | [0, 1] | 400 |" in index
 
 
 def test_interrupted_save_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
