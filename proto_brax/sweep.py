@@ -303,7 +303,6 @@ def print_table(summary: list[dict], grid_keys: list[str]) -> None:
 
 def run_sweep(args: SweepArgs) -> list[dict]:
     """Validate, compile, run (or resume) the grid; returns the per-point summary."""
-    from proto_brax.config import FinetuneConfig  # noqa: F401  (validation happens in _finetune_config)
     from proto_brax.train.grid import make_grid
 
     cfg = _finetune_config(args)
