@@ -132,6 +132,8 @@ def load_dataset(name_or_path: str | Path, size: int | None = None, seed: int = 
         return ds.load_npz(path, rebuild_hint=hint + " --force")
     if p.exists():
         return ds.load_d4rl_hdf5(p) if p.suffix in (".hdf5", ".h5") else ds.load_npz(p)
+    if p.suffix:
+        raise FileNotFoundError(f"Dataset file {name_or_path} does not exist.")
     raise ValueError(f"Unknown dataset {name_or_path!r}: not a file, and not one of: {', '.join(dataset_names())}.")
 
 

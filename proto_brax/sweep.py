@@ -129,12 +129,7 @@ def _load_dataset(name_or_path: str | None, size: int | None = None):
             print(f"dataset {name_or_path} is not cached: building it "
                   f"(= {datasets.rebuild_command(name_or_path, size, 0).replace(' --force', '')})", flush=True)
             datasets.cmd_make(datasets.Make(name=name_or_path, size=size))
-        return datasets.load_dataset(name_or_path, size)
-    if not Path(name_or_path).suffix and "-" in name_or_path:
-        return datasets.load_dataset(name_or_path, size)  # raises: unknown name, listing the valid ones
-    if not Path(name_or_path).exists():
-        raise FileNotFoundError(f"Dataset file {name_or_path} does not exist.")
-    return datasets.load_dataset(Path(name_or_path))
+    return datasets.load_dataset(name_or_path, size)  # a file, or an error naming the problem
 
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -317,15 +312,9 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     ckpt = resolve_checkpoint(args)
     if args.pretrain is not None and (dataset_name is None or args.checkpoint not in ("auto", "none")):
         raise ValueError("--pretrain needs --dataset (the data to pretrain on) and no --checkpoint.")
-    if ckpt is not None and not args.pretrain:  # validate the bundle before building or loading any data
-        from proto_brax import checkpoints
-        from proto_brax.envs import make_env
-
-        env = make_env(cfg.env, cfg.backend)
-        checkpoints.validate_bundle(checkpoints.read_metadata(ckpt), cfg.env, env.observation_size,
-                                    env.action_size, cfg.net)
-    dataset, dmeta = _load_dataset(dataset_name, args.dataset_size)
+    # The bundle is validated (and loaded: a few MB) before any dataset is built or read.
     pretrained, per_run, bmeta = _load_checkpoint(None if args.pretrain else ckpt, cfg, grid)
+    dataset, dmeta = _load_dataset(dataset_name, args.dataset_size)
     config = {"sweep": sweep_cfg, "finetune": dataclasses.asdict(cfg), "grid": list(grid.points),
               "dataset_metadata": dmeta,
               "checkpoint_metadata": bmeta}
