@@ -5,7 +5,9 @@
 
 Each pair runs ``python -m proto_brax.pretrain --dataset ENV-KIND --algo ALGO --seeds 0 --steps 100000`` (the paper's
 10⁵ steps) into ``checkpoints/pretrained/ENV-KIND/ALGO``; a pair whose bundle exists is skipped, so an interrupted
-queue resumes by running the same command again (a bundle is written atomically at the end of its run). Datasets are
+queue resumes by running the same command again (a bundle is written atomically at the end of its run). A bundle
+whose ``dataset_content_hash`` differs from the cached dataset's (the dataset was regenerated since) is stale and is
+remade with ``--overwrite``. Datasets are
 built into the cache first when missing. ``--workers`` processes run at once, each pinned to one core with XLA's
 single-threaded CPU flags (two such processes do more updates per second in total than one two-threaded process on
 this 2-core machine, shared/FACTS.md). Logs go to runs/pretrain_all/.
@@ -14,6 +16,7 @@ this 2-core machine, shared/FACTS.md). Logs go to runs/pretrain_all/.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import subprocess
 import sys
@@ -37,24 +40,41 @@ class Args:
     logs: Path = ROOT / "runs" / "pretrain_all"
 
 
-def pending(args: Args) -> list[tuple[str, str]]:
+def cached_hash(dataset: str) -> str | None:
+    """Content hash recorded in the cached dataset file (reads only its metadata entry), None if not cached."""
+    import numpy as np
+
+    from proto_brax.datasets import dataset_path
+
+    path = dataset_path(dataset)
+    if not path.exists():
+        return None
+    with np.load(path, allow_pickle=False) as npz:
+        return json.loads(str(npz["metadata"][()]))["content_hash"]
+
+
+def pending(args: Args) -> list[tuple[str, str, bool]]:
+    """(dataset, algo, stale) for every bundle to make; stale = it exists but was trained on another dataset."""
     out = []
     for env in args.envs:
         for kind in args.kinds:
             for algo in args.algos:
-                if not (ROOT / "checkpoints" / "pretrained" / f"{env}-{kind}" / algo / "metadata.json").exists():
-                    out.append((f"{env}-{kind}", algo))
+                meta = ROOT / "checkpoints" / "pretrained" / f"{env}-{kind}" / algo / "metadata.json"
+                if not meta.exists():
+                    out.append((f"{env}-{kind}", algo, False))
+                elif (h := cached_hash(f"{env}-{kind}")) and json.loads(meta.read_text())["dataset_content_hash"] != h:
+                    out.append((f"{env}-{kind}", algo, True))
     return out
 
 
 def main(args: Args) -> None:
     args.logs.mkdir(parents=True, exist_ok=True)
+    sys.path.insert(0, str(ROOT))
     queue = pending(args)
     print(f"{len(queue)} bundle(s) to make: {queue}", flush=True)
-    sys.path.insert(0, str(ROOT))
     from proto_brax.datasets import dataset_path
 
-    for dataset in dict.fromkeys(d for d, _ in queue):  # build missing datasets first (deterministic, cached)
+    for dataset in dict.fromkeys(d for d, _, _ in queue):  # build missing datasets first (deterministic, cached)
         if not dataset_path(dataset).exists():
             print(f"[{time.strftime('%H:%M:%S')}] building {dataset}", flush=True)
             subprocess.run([sys.executable, "-m", "proto_brax.datasets", "make", dataset], cwd=ROOT, check=True)
@@ -62,10 +82,10 @@ def main(args: Args) -> None:
     while queue or running:
         for core in range(args.workers):
             if core not in running and queue:
-                dataset, algo = queue.pop(0)
+                dataset, algo, stale = queue.pop(0)
                 cmd = ["taskset", "-c", str(core % (os.cpu_count() or 1)), sys.executable, "-m", "proto_brax.pretrain",
                        "--dataset", dataset, "--algo", algo, "--steps", str(args.steps),
-                       "--seeds", *map(str, args.seeds)]
+                       "--seeds", *map(str, args.seeds), *(["--overwrite"] if stale else [])]
                 log = open(args.logs / f"{dataset}-{algo}.log", "a")
                 env = {**os.environ, "XLA_FLAGS": SINGLE_THREAD}
                 running[core] = (subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env=env),

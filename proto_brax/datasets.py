@@ -24,6 +24,7 @@ content hash in the metadata).
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import time
 from pathlib import Path
@@ -32,6 +33,37 @@ import numpy as np
 import tyro
 
 ENV_VAR = "PROTO_BRAX_DATASETS"
+
+
+MEDIUM_RULE = "eval return closest to R_random + (R_expert - R_random) / 3 (registered references)"
+
+
+def reference_returns(spec) -> tuple[float, float] | None:
+    """(R_random, R_expert) registered for the env, None where it has none (medium then falls back to expert / 3)."""
+    return None if spec.ref_random is None or spec.ref_expert is None else (spec.ref_random, spec.ref_expert)
+
+
+def current_snapshots(env_name: str, behavior_root: Path | None = None) -> dict[str, int]:
+    """Steps of the behaviour snapshots the current rule picks for ``env_name``: {"expert": …, "medium": …}."""
+    from proto_brax import envs
+    from proto_brax.data import generate as g
+
+    expert, medium = g.pick_expert_medium(g.list_snapshots(env_name, behavior_root),
+                                          reference_returns(envs.get_spec(env_name)))
+    return {"expert": expert.step, "medium": medium.step}
+
+
+def stale_reason(meta: dict, behavior_root: Path | None = None) -> str | None:
+    """Why a cached dataset no longer matches what ``make`` would generate now (its medium or expert snapshot is not
+    the one the current rule picks: new snapshots, or a changed rule), or None when it is current."""
+    if meta.get("kind") in (None, "random") or "expert_snapshot" not in meta:
+        return None
+    now = current_snapshots(meta["env"], behavior_root)
+    for which in ("medium", "expert"):
+        had = meta[f"{which}_snapshot"]["step"]
+        if had != now[which]:
+            return f"it was generated from the {which} snapshot at step {had}, the current rule picks step {now[which]}"
+    return None
 
 
 def cache_dir(override: Path | None = None) -> Path:
@@ -101,24 +133,28 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     meta = {"name": name, "env": env_name, "backend": spec.default_backend, "kind": kind, "size": size,
             "seed": seed, "num_envs": num_envs, "episode_length": spec.episode_length, "version": __version__}
 
-    policies: list[tuple[str, object, dict]] = []  # (label, policy, info)
+    policies: list[tuple[str, object, object, dict]] = []  # (label, policy, params, info)
     if kind != "random":
         snaps = g.list_snapshots(env_name, behavior_root)
-        expert, medium = g.pick_expert_medium(snaps)
+        expert, medium = g.pick_expert_medium(snaps, reference_returns(spec))
         meta["expert_snapshot"] = {"step": expert.step, "eval_return": expert.eval_return}
-        meta["medium_snapshot"] = {"step": medium.step, "eval_return": medium.eval_return}
+        meta["medium_snapshot"] = {"step": medium.step, "eval_return": medium.eval_return,
+                                   "rule": MEDIUM_RULE if reference_returns(spec) else "expert eval / 3"}
+        samplers: dict[str, object] = {}  # one stochastic-policy function per network config: one compile
 
         def snap_policy(s):
             nets, params = g.load_snapshot_actor(s, env)
-            return (f"step_{s.step}", g.stochastic_policy(nets, params),
+            net = json.dumps(s.metadata["config"]["finetune"]["net"], sort_keys=True)
+            return (f"step_{s.step}", samplers.setdefault(net, g.stochastic_policy(nets)), params,
                     {"step": s.step, "eval_return": s.eval_return, "params_hash": g.params_hash(params)})
 
+    uniform = ("uniform", g.uniform_param_policy(env.action_size), None, {"step": 0})
     if kind == "random":
-        policies.append(("uniform", g.uniform_policy(env.action_size), {"step": 0}))
+        policies.append(uniform)
     elif kind in ("medium", "expert"):
         policies.append(snap_policy(medium if kind == "medium" else expert))
     elif kind == "medium-replay":
-        policies.append(("uniform", g.uniform_policy(env.action_size), {"step": 0}))
+        policies.append(uniform)
         policies += [snap_policy(s) for s in snaps if s.step <= medium.step]
     else:  # medium-expert
         policies += [snap_policy(medium), snap_policy(expert)]
@@ -131,14 +167,15 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     shares[-1] += per_env - sum(shares)
     parts = []
     bar = tqdm(total=total, unit="tr", desc=name, disable=not progress, dynamic_ncols=True)
-    for i, ((_, policy, info), steps) in enumerate(zip(policies, shares)):
+    for i, ((_, policy, params, info), steps) in enumerate(zip(policies, shares)):
         segment = next(d for d in (1000, 500, 250, 200, 100, 50, 25, 10, 5, 2, 1) if steps % d == 0)
-        part = g.rollouts(env, spec.episode_length, policy, jax.random.fold_in(key, i), num_envs, steps, segment, bar)
+        part = g.rollouts(env, spec.episode_length, policy, params, jax.random.fold_in(key, i), num_envs, steps,
+                          segment, bar)
         parts.append(part)
         info["transitions"] = steps * num_envs
     bar.close()
     data = jax.tree.map(lambda *xs: np.concatenate(xs).astype(np.float32), *parts)
-    meta["behavior"] = [info for _, _, info in policies]
+    meta["behavior"] = [info for *_, info in policies]
     meta["size"] = total
     meta["returns"] = episode_return_stats(data)
     return data, meta
@@ -156,7 +193,10 @@ def load_dataset(name_or_path: str | Path, size: int | None = None, seed: int = 
         hint = rebuild_command(str(name_or_path), size, seed).replace(" --force", "")
         if not path.exists():
             raise FileNotFoundError(f"Dataset {name_or_path} is not in the cache ({path}): build it with `{hint}`.")
-        return ds.load_npz(path, rebuild_hint=hint + " --force")
+        data, meta = ds.load_npz(path, rebuild_hint=hint + " --force")
+        if why := stale_reason(meta):
+            raise ds.CorruptDatasetError(f"Cached dataset {path} is stale: {why}; rebuild it with `{hint} --force`.")
+        return data, meta
     if p.exists():
         return ds.load_d4rl_hdf5(p) if p.suffix in (".hdf5", ".h5") else ds.load_npz(p)
     if p.suffix:
@@ -223,8 +263,8 @@ def cmd_make(a: Make) -> Path:
 
         for sub in ("medium", "expert"):
             sub_path = dataset_path(a.name.replace("medium-expert", sub), a.size, a.seed, a.cache_dir)
-            if sub_path.exists():
-                parts[sub] = load_npz(sub_path)
+            if sub_path.exists() and not stale_reason((part := load_npz(sub_path))[1]):
+                parts[sub] = part
     data, meta = make_dataset(a.name, a.size, a.seed, a.num_envs, parts=parts)
     meta["seconds"] = time.time() - t0
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -269,7 +309,7 @@ def cmd_references(a: References) -> dict:
 
     spec = envs.get_spec(a.env)
     env = envs.make_env(a.env)
-    expert, _ = g.pick_expert_medium(g.list_snapshots(a.env))
+    expert, _ = g.pick_expert_medium(g.list_snapshots(a.env))  # the expert is the final snapshot either way
     nets, params = g.load_snapshot_actor(expert, env)
     import jax.numpy as jnp
 

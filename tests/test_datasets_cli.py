@@ -26,12 +26,15 @@ def test_same_name_size_seed_gives_identical_arrays(medium):
     assert content_hash(medium[0]) != content_hash(other[0])
 
 
-def test_medium_uses_the_snapshot_closest_to_a_third_of_expert(medium):
+def test_medium_uses_the_snapshot_closest_to_a_third_of_the_normalized_range(medium):
+    from proto_brax import envs
+
+    spec = envs.get_spec("point")
     snaps = g.list_snapshots("point")
-    expert, med = g.pick_expert_medium(snaps)
+    expert, med = g.pick_expert_medium(snaps, datasets.reference_returns(spec))
     assert expert.step == max(s.step for s in snaps)
-    best = min(abs(s.eval_return - expert.eval_return / 3) for s in snaps[:-1])
-    assert abs(med.eval_return - expert.eval_return / 3) == best
+    target = spec.ref_random + (spec.ref_expert - spec.ref_random) / 3
+    assert abs(med.eval_return - target) == min(abs(s.eval_return - target) for s in snaps[:-1])
     data, meta = medium
     assert meta["medium_snapshot"]["step"] == med.step and meta["behavior"][0]["step"] == med.step
     assert data.observations.shape == (2000, 4) and data.actions.shape == (2000, 2)
@@ -49,6 +52,23 @@ def test_synthetic_snapshot_choice():
     snaps = [mk(0, 5.0), mk(1, 31.0), mk(2, 40.0), mk(3, 100.0), mk(4, 90.0)]
     expert, med = g.pick_expert_medium(snaps)
     assert expert.step == 4 and med.step == 1  # 90 / 3 = 30 -> 31
+    # with reference returns (random 0, expert 120: the final snapshot's 90 underestimates it) the target is 40
+    expert, med = g.pick_expert_medium(snaps, (0.0, 120.0))
+    assert expert.step == 4 and med.step == 2
+    expert, med = g.pick_expert_medium(snaps, (-60.0, 120.0))  # -60 + 180 / 3 = 0 -> the 5.0 snapshot
+    assert med.step == 0
+
+
+def test_a_cached_dataset_from_other_snapshots_is_stale(tmp_path, medium):
+    from proto_brax.data.dataset import save_npz
+
+    data, meta = medium
+    assert datasets.stale_reason(meta) is None
+    old = {**meta, "medium_snapshot": {**meta["medium_snapshot"], "step": meta["medium_snapshot"]["step"] + 1}}
+    save_npz(datasets.dataset_path("point-medium", 2000, 0, tmp_path), data, old)
+    with pytest.raises(CorruptDatasetError, match=r"stale: .*medium snapshot at step .*make point-medium --size 2000 "
+                                                  r"--force"):
+        datasets.load_dataset("point-medium", 2000, 0, tmp_path)
 
 
 def test_kinds_are_ordered_and_sized():
