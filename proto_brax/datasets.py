@@ -19,6 +19,7 @@ content hash in the metadata).
     python -m proto_brax.datasets make hopper-medium [--size N] [--seed S]
     python -m proto_brax.datasets info hopper-medium
     python -m proto_brax.datasets references hopper
+    python -m proto_brax.datasets measure ant            # behaviour-policy returns of every snapshot (picks medium)
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import tyro
 ENV_VAR = "PROTO_BRAX_DATASETS"
 
 
-MEDIUM_RULE = "eval return closest to R_random + (R_expert - R_random) / 3 (registered references)"
+MEDIUM_RULE = "closest to R_random + (R_expert - R_random) / 3 (registered references)"
 
 
 def reference_returns(spec) -> tuple[float, float] | None:
@@ -138,8 +139,12 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
         snaps = g.list_snapshots(env_name, behavior_root)
         expert, medium = g.pick_expert_medium(snaps, reference_returns(spec))
         meta["expert_snapshot"] = {"step": expert.step, "eval_return": expert.eval_return}
-        meta["medium_snapshot"] = {"step": medium.step, "eval_return": medium.eval_return,
-                                   "rule": MEDIUM_RULE if reference_returns(spec) else "expert eval / 3"}
+        measured = "behavior_return" in medium.metadata
+        meta["medium_snapshot"] = {
+            "step": medium.step, "eval_return": medium.eval_return,
+            **({"behavior_return": medium.metadata["behavior_return"]} if measured else {}),
+            "rule": (f"{'behaviour return' if measured else 'eval return'} {MEDIUM_RULE}" if reference_returns(spec)
+                     else "expert eval / 3")}
         samplers: dict[str, object] = {}  # one stochastic-policy function per network config: one compile
 
         def snap_policy(s):
@@ -241,12 +246,46 @@ class List:
 
 
 @dataclasses.dataclass
+class Measure:
+    """Measure every behaviour snapshot's stochastic-policy return (the policy that generates the data) and record
+    it as ``behavior_return`` in the snapshot's metadata.json; medium is then chosen by it."""
+
+    env: tyro.conf.Positional[str]
+    episodes: int = 100
+    seed: int = 0
+    behavior_root: Path | None = None
+    """Default: checkpoints/behavior."""
+
+
+@dataclasses.dataclass
 class References:
     """Measure an env's normalized-score references: uniform policy and deterministic expert snapshot."""
 
     env: tyro.conf.Positional[str]
     episodes: int = 100
     seed: int = 0
+
+
+def cmd_measure(a: Measure) -> list[dict]:
+    from proto_brax import envs
+    from proto_brax.checkpoints import write_json_atomic
+    from proto_brax.data import generate as g
+
+    spec = envs.get_spec(a.env)
+    env = envs.make_env(a.env)
+    out = []
+    for snap, ret in g.behavior_returns(env, spec.episode_length, g.list_snapshots(a.env, a.behavior_root),
+                                        a.episodes, a.seed):
+        rec = {"mean": float(ret.mean()), "std": float(ret.std()), "episodes": a.episodes, "seed": a.seed,
+               "policy": "stochastic (tanh-Gaussian samples), as in the datasets"}
+        write_json_atomic(snap.path / "metadata.json", {**snap.metadata, "behavior_return": rec})
+        score = float(envs.normalized_score(a.env, rec["mean"]))
+        print(f"{a.env} step {snap.step}: eval {snap.eval_return:.1f}, behaviour return {rec['mean']:.1f} ± "
+              f"{rec['std']:.1f} (normalized {score:.1f}) over {a.episodes} episodes", flush=True)
+        out.append({"step": snap.step, **rec, "normalized": score})
+    _, medium = g.pick_expert_medium(g.list_snapshots(a.env, a.behavior_root), reference_returns(spec))
+    print(f"{a.env}: medium is now the snapshot at step {medium.step}")
+    return out
 
 
 def cmd_make(a: Make) -> Path:
@@ -327,9 +366,9 @@ def cmd_references(a: References) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     cmd = tyro.extras.subcommand_cli_from_dict(
-        {"make": Make, "info": Info, "list": List, "references": References}, args=argv
+        {"make": Make, "info": Info, "list": List, "references": References, "measure": Measure}, args=argv
     )
-    {Make: cmd_make, Info: cmd_info, List: cmd_list, References: cmd_references}[type(cmd)](cmd)
+    {Make: cmd_make, Info: cmd_info, List: cmd_list, References: cmd_references, Measure: cmd_measure}[type(cmd)](cmd)
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ NaN is stored as ``null`` in report.json.
 from __future__ import annotations
 
 import dataclasses
+import gzip
 import json
 import math
 import os
@@ -111,12 +112,15 @@ def load_sweep(path: str | os.PathLike) -> Sweep:
     if not path.is_dir():
         raise ReportError(f"not a sweep directory: {path} does not exist or is not a directory; {hint}.")
     metrics = path / "metrics.jsonl"
+    if not metrics.is_file() and (path / "metrics.jsonl.gz").is_file():  # as benchmarks publish them
+        metrics = path / "metrics.jsonl.gz"
     if not metrics.is_file():
         raise ReportError(f"not a sweep directory: {path} has no metrics.jsonl; {hint}.")
     config = _read_json(path / "config.json") if (path / "config.json").is_file() else {}
     summary = _read_json(path / "summary.json") if (path / "summary.json").is_file() else None
     rows: dict[tuple[int, int], dict] = {}
-    for n, line in enumerate(metrics.read_text().splitlines(), 1):
+    text = gzip.decompress(metrics.read_bytes()).decode() if metrics.suffix == ".gz" else metrics.read_text()
+    for n, line in enumerate(text.splitlines(), 1):
         if not line.strip():
             continue
         try:

@@ -57,6 +57,29 @@ def test_synthetic_snapshot_choice():
     assert expert.step == 4 and med.step == 2
     expert, med = g.pick_expert_medium(snaps, (-60.0, 120.0))  # -60 + 180 / 3 = 0 -> the 5.0 snapshot
     assert med.step == 0
+    # measured behaviour (stochastic-policy) returns take precedence over the evaluations, once all are measured
+    beh = lambda step, r, b: g.Snapshot(step, Path("."), r, {"behavior_return": {"mean": b}})  # noqa: E731
+    snaps = [beh(0, 5.0, 1.0), beh(1, 31.0, 20.0), beh(2, 40.0, 25.0), beh(3, 60.0, 41.0), beh(4, 90.0, 80.0)]
+    assert g.pick_expert_medium(snaps, (0.0, 120.0))[1].step == 3  # target 40: behaviour 41, not eval 40
+    snaps[2] = mk(2, 40.0)  # one unmeasured snapshot: evaluations for all
+    assert g.pick_expert_medium(snaps, (0.0, 120.0))[1].step == 2
+
+
+def test_measure_records_behavior_returns_and_picks_medium_by_them(tmp_path, capsys):
+    import shutil
+
+    root = tmp_path / "behavior"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "checkpoints" / "behavior" / "point", root / "point")
+    out = datasets.cmd_measure(datasets.Measure("point", episodes=8, behavior_root=root))
+    snaps = g.list_snapshots("point", root)
+    assert [r["step"] for r in out] == [s.step for s in snaps]
+    assert all(s.metadata["behavior_return"]["episodes"] == 8 for s in snaps)
+    assert out[-1]["mean"] > out[0]["mean"] + 10  # the final snapshot's samples score far above the first one's
+    _, med = g.pick_expert_medium(snaps, (0.34, 49.0))
+    target = 0.34 + (49.0 - 0.34) / 3
+    assert abs(med.metadata["behavior_return"]["mean"] - target) == min(
+        abs(s.metadata["behavior_return"]["mean"] - target) for s in snaps[:-1])
+    assert f"medium is now the snapshot at step {med.step}" in capsys.readouterr().out
 
 
 def test_a_cached_dataset_from_other_snapshots_is_stale(tmp_path, medium):

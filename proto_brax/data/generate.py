@@ -120,18 +120,44 @@ def list_snapshots(env: str, root: Path | None = None) -> list[Snapshot]:
 
 def pick_expert_medium(snaps: list[Snapshot], reference: tuple[float, float] | None = None
                        ) -> tuple[Snapshot, Snapshot]:
-    """D4RL's convention: expert = the final snapshot; medium = the snapshot whose evaluation return is closest to
-    one third of the expert's (ties go to the earlier snapshot).
+    """D4RL's convention: expert = the final snapshot; medium = the snapshot that performs at about one third of the
+    expert (ties go to the earlier snapshot).
 
-    With ``reference = (R_random, R_expert)``, the env's registered reference returns (each measured over 100
-    episodes), "one third" is taken on the normalized scale, R_random + (R_expert − R_random) / 3, instead of a third
-    of the final snapshot's own 10-episode training evaluation: that evaluation is noisy (ant: 3962 over 10 episodes
-    against 5632 over 100), and a low estimate picked an ant medium policy that scored 16.5 instead of D4RL's 25–45.
+    With ``reference = (R_random, R_expert)`` (the env's registered 100-episode references) and every snapshot's
+    ``behavior_return`` measured (``python -m proto_brax.datasets measure ENV``: mean return of the *stochastic*
+    policy that generates the data, over 100 episodes), medium is the snapshot whose behaviour return is closest to
+    R_random + (R_expert − R_random) / 3, i.e. the dataset's expected normalized score is closest to 33. Without the
+    measurements, the snapshots' 10-episode deterministic training evaluations stand in, which is what D4RL did but
+    is noisy and optimistic: ant's chosen that way scored 16.5 (then 22.4) normalized instead of D4RL's 25–45, as its
+    sampled actions fall far more often than its mean actions. Without references: a third of the expert's
+    evaluation.
     """
     expert = snaps[-1]
-    target = expert.eval_return / 3.0 if reference is None else reference[0] + (reference[1] - reference[0]) / 3.0
-    medium = min(snaps[:-1] or snaps, key=lambda s: (abs(s.eval_return - target), s.step))
+    candidates = snaps[:-1] or snaps
+    if reference is None:
+        target, value = expert.eval_return / 3.0, lambda s: s.eval_return
+    else:
+        target = reference[0] + (reference[1] - reference[0]) / 3.0
+        measured = all("behavior_return" in s.metadata for s in candidates)
+        value = (lambda s: s.metadata["behavior_return"]["mean"]) if measured else (lambda s: s.eval_return)
+    medium = min(candidates, key=lambda s: (abs(value(s) - target), s.step))
     return expert, medium
+
+
+def behavior_returns(env, horizon: int, snaps: list[Snapshot], episodes: int, seed: int):
+    """Yield (snapshot, episode returns [episodes]) of each snapshot's stochastic policy, one compiled program for
+    all (the parameters are an argument)."""
+    from proto_brax.train.evaluate import run_episodes
+
+    programs: dict[str, Callable] = {}
+    for snap in snaps:
+        nets, params = load_snapshot_actor(snap, env)
+        net = repr(snap.metadata["config"]["finetune"]["net"])
+        if net not in programs:
+            policy = stochastic_policy(nets)
+            programs[net] = jax.jit(lambda p, k, policy=policy: run_episodes(
+                env, horizon, functools.partial(policy, p), k, episodes))
+        yield snap, np.asarray(programs[net](params, jax.random.PRNGKey(seed)))
 
 
 def load_snapshot_actor(snap: Snapshot, env):

@@ -1,0 +1,248 @@
+"""Write ``benchmarks/RESULTS.md`` from the published locomotion sweeps, the cost benchmark and the bundles.
+
+    python benchmarks/results_md.py       # after `python benchmarks/locomotion.py run` has published sweeps
+
+Reads every ``benchmarks/results/locomotion/DATASET/METHOD`` (summary.json, config.json, metrics.jsonl.gz as
+``benchmarks/locomotion.py`` publishes them), the bundles' offline scores (``checkpoints/pretrained``) and
+``benchmarks/results/methods_cost.json``; writes RESULTS.md (per-dataset tables, aggregates, the paper's three claims
+checked against the numbers) and ``aggregate.png`` (IQM learning curves over all datasets and seeds per method) next
+to the sweeps. Every number is computed here from those files: rerunning this script regenerates the page.
+
+Definitions (per run = one seed of one dataset × method): *initial* = π₀'s normalized score at step 0 (before any
+online step); *drop* = the lowest score within the first 10% of the online steps (the sweep's
+``min_normalized_first_10pct``); *final* = the score at the last evaluation. Aggregates are IQMs with 95% percentile
+bootstrap CIs over all (dataset, seed) runs of a method (:func:`proto_brax.stats.iqm_ci`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import tyro
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from proto_brax.checkpoints import write_json_atomic  # noqa: E402
+from proto_brax.methods import METHODS  # noqa: E402
+from proto_brax.report import Sweep, load_sweep  # noqa: E402
+from proto_brax.stats import iqm_ci  # noqa: E402
+
+ORDER = ("proto-sac", "frozen", "direct", "iql", "sac-scratch", "proto-td3", "proto-bc", "pex", "awac", "calql",
+         "off2on", "td3-scratch", "sac-offline")
+
+
+@dataclasses.dataclass
+class Args:
+    results: Path = ROOT / "benchmarks" / "results" / "locomotion"
+    cost: Path = ROOT / "benchmarks" / "results" / "methods_cost.json"
+    bundles: Path = ROOT / "checkpoints" / "pretrained"
+    out: Path = ROOT / "benchmarks" / "RESULTS.md"
+
+
+def run_scores(sweep: Sweep) -> list[dict]:
+    """Per run: initial, drop (lowest in the first 10% of the online steps), final; the sweep's own definitions."""
+    out = []
+    for r in sweep.runs:
+        init = [row for row in r.rows if row.get("initial")]
+        rows = [row for row in r.rows if not row.get("initial")]
+        if not rows:
+            continue
+        horizon = max(row["step"] for row in rows)
+        early = ([row["normalized_score"] for row in rows if row["step"] <= 0.1 * horizon]
+                 or [rows[0]["normalized_score"]])
+        out.append({"seed": r.seed, "initial": init[0]["normalized_score"] if init else math.nan,
+                    "drop": float(min(early)), "final": float(rows[-1]["normalized_score"]),
+                    "diverged": r.diverged, "steps": [row["step"] for row in rows],
+                    "curve": [float(row["normalized_score"]) for row in rows]})
+    return out
+
+
+def offline_score(bundles: Path, dataset: str, method: str) -> float:
+    if not METHODS[method].bundles:
+        return math.nan
+    meta = bundles / dataset / METHODS[method].bundles[0] / "metadata.json"
+    if not meta.exists():
+        return math.nan
+    ev = json.loads(meta.read_text()).get("offline_eval") or {}
+    return float(ev.get("normalized_score_mean", math.nan))
+
+
+def collect(args: Args) -> dict[str, dict[str, dict]]:
+    """{dataset: {method: {"runs": [...], "summary": {...}, "config": {...}, "offline": float}}}."""
+    table: dict[str, dict[str, dict]] = {}
+    for d in sorted(p for p in args.results.glob("*/*") if (p / "summary.json").exists()):
+        dataset, method = d.parent.name, d.name
+        sweep = load_sweep(d)
+        table.setdefault(dataset, {})[method] = {
+            "runs": run_scores(sweep), "summary": sweep.summary, "config": sweep.config,
+            "offline": offline_score(args.bundles, dataset, method)}
+    return table
+
+
+def fmt(x: float, nd: int = 1) -> str:
+    return "–" if x is None or not math.isfinite(x) else f"{x:.{nd}f}"
+
+
+def ci(values) -> tuple[float, float, float]:
+    return iqm_ci([v for v in values if math.isfinite(v)])
+
+
+def ci_str(values) -> str:
+    m, lo, hi = ci(values)
+    return f"{fmt(m)} [{fmt(lo)}, {fmt(hi)}]"
+
+
+def methods_in(table) -> list[str]:
+    present = {m for per in table.values() for m in per}
+    return [m for m in ORDER if m in present] + sorted(present - set(ORDER))
+
+
+def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
+    lines = [f"### {dataset}", "",
+             "| method | offline | initial (π₀) | lowest in first 10% | final mean ± std | final IQM [95% CI] "
+             "| seeds |",
+             "|---|---|---|---|---|---|---|"]
+    for m in [m for m in ORDER if m in per] + sorted(set(per) - set(ORDER)):
+        runs = per[m]["runs"]
+        fin = [r["final"] for r in runs]
+        finite = [v for v in fin if math.isfinite(v)]
+        bad = f" ({len(fin) - len(finite)} diverged)" if len(finite) < len(fin) else ""
+        lines.append(f"| {m} | {fmt(per[m]['offline'])} | {fmt(np.nanmean([r['initial'] for r in runs]))} | "
+                     f"{fmt(np.nanmean([r['drop'] for r in runs]))} | "
+                     f"{fmt(np.mean(finite)) if finite else '–'} ± {fmt(np.std(finite)) if finite else '–'} | "
+                     f"{ci_str(fin)} | {len(runs)}{bad} |")
+    return lines + [""]
+
+
+def claims(table, cost: dict | None) -> list[str]:
+    out = ["## The paper's three claims on Brax", ""]
+    # (1) initial drop: PROTO's lowest early score relative to π₀ against direct finetuning's
+    both = [d for d, per in table.items() if {"proto-sac", "direct"} <= set(per)]
+    if both:
+        rows, wins = [], 0
+        for d in both:
+            p = [r["drop"] - r["initial"] for r in table[d]["proto-sac"]["runs"]]
+            q = [r["drop"] - r["initial"] for r in table[d]["direct"]["runs"]]
+            pm, qm = float(np.nanmean(p)), float(np.nanmean(q))
+            wins += pm > qm
+            rows.append(f"| {d} | {fmt(pm)} | {fmt(qm)} |")
+        out += [f"**(1) PROTO avoids the initial drop of direct finetuning.** Lowest score in the first 10% minus π₀'s "
+                f"score (mean over seeds; 0 = no drop). PROTO's drop is smaller on {wins} of {len(both)} datasets.", "",
+                "| dataset | PROTO | direct SAC finetune |", "|---|---|---|", *rows, ""]
+    # (2) final: PROTO against Frozen and IQL
+    for other, name in (("frozen", "Frozen (τ = 0)"), ("iql", "IQL finetune")):
+        pairs = [d for d, per in table.items() if {"proto-sac", other} <= set(per)]
+        if not pairs:
+            out += [f"**(2) PROTO ends above {name}:** not measured yet (no dataset has both sweeps).", ""]
+            continue
+        p_all = [r["final"] for d in pairs for r in table[d]["proto-sac"]["runs"]]
+        o_all = [r["final"] for d in pairs for r in table[d][other]["runs"]]
+        wins = sum(np.nanmean([r["final"] for r in table[d]["proto-sac"]["runs"]])
+                   > np.nanmean([r["final"] for r in table[d][other]["runs"]]) for d in pairs)
+        (pm, plo, _), (om, _, ohi) = ci(p_all), ci(o_all)
+        verdict = "holds (CIs separate)" if plo > ohi else ("holds on the point estimate only (CIs overlap)"
+                                                             if pm > om else "does not hold")
+        out += [f"**(2) PROTO ends above {name}** on {wins} of {len(pairs)} datasets (mean final score); final IQM "
+                f"over all runs PROTO {ci_str(p_all)} vs {ci_str(o_all)}: {verdict}.", ""]
+    # (3) cost
+    if cost and "proto-sac" in cost.get("results", {}):
+        res = cost["results"]
+        sac = res.get("sac-scratch", {}).get("seconds_per_1e5_steps")
+        ratio = res["proto-sac"]["seconds_per_1e5_steps"] / sac if sac else math.nan
+        out += [f"**(3) PROTO costs about what SAC costs:** PROTO-SAC / SAC-from-scratch wall time per online step = "
+                f"{fmt(ratio, 2)} (`{cost.get('command', '')}`, {cost.get('date', '')}; "
+                f"{cost.get('status', '')}).", ""]
+    return out
+
+
+def cost_table(cost: dict | None) -> list[str]:
+    if not cost:
+        return []
+    lines = ["## Compute cost per method", "", f"`{cost.get('command', '')}` ({cost.get('date', '')}; env "
+             f"{cost.get('env', '')}; {cost.get('status', '')})", "",
+             "| method | s per 10⁵ online steps | × PROTO-SAC |", "|---|---|---|"]
+    for m, r in cost.get("results", {}).items():
+        lines.append(f"| {m} | {fmt(r['seconds_per_1e5_steps'], 0)} | {fmt(r['ratio_to_proto_sac'], 2)} |")
+    return lines + [""]
+
+
+def aggregate_curves(table, path: Path) -> dict:
+    """IQM [95% CI] over all (dataset, seed) runs per method at each evaluation index; one PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curves = {}
+    for m in methods_in(table):
+        runs = [r for per in table.values() if m in per for r in per[m]["runs"]]
+        n = min(len(r["curve"]) for r in runs)
+        stats = [ci([r["curve"][k] for r in runs]) for k in range(n)]
+        frac = [(k + 1) / n for k in range(n)]
+        curves[m] = {"fraction": frac, "iqm": [s[0] for s in stats], "low": [s[1] for s in stats],
+                     "high": [s[2] for s in stats], "n_runs": len(runs)}
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for m, c in curves.items():
+        ax.plot(c["fraction"], c["iqm"], label=f"{m} ({c['n_runs']} runs)")
+        ax.fill_between(c["fraction"], c["low"], c["high"], alpha=0.15)
+    ax.set_xlabel("fraction of the online budget")
+    ax.set_ylabel("normalized score (IQM, 95% CI)")
+    ax.set_title("All locomotion datasets")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=120)
+    plt.close(fig)
+    tmp.replace(path)
+    return curves
+
+
+def render(args: Args) -> str:
+    table = collect(args)
+    cost = json.loads(args.cost.read_text()) if args.cost.exists() else None
+    if not table:
+        raise SystemExit(f"No published sweeps under {args.results}: run `python benchmarks/locomotion.py run`.")
+    budgets = sorted({per[m]["summary"].get("steps") for per in table.values() for m in per})
+    curves = aggregate_curves(table, args.results / "aggregate.png")
+    write_json_atomic(args.results / "aggregate.json", curves)
+    lines = ["# Results: PROTO and its baselines on Brax locomotion (reduced scale)", "",
+             "Generated by `python benchmarks/results_md.py` from the sweeps `python benchmarks/locomotion.py run` "
+             "published under `benchmarks/results/locomotion/` (each sweep's `config.json` holds its full command "
+             "line). Do not edit by hand.", "",
+             f"Online budget: {', '.join(f'{b:,}' for b in budgets)} steps per run (the paper: 10⁶), α annealed over "
+             "the same fraction of the run; normalized scores use this suite's Brax references "
+             "(`proto_brax/envs.py`), so they are not comparable to D4RL numbers.", ""]
+    lines += claims(table, cost)
+    lines += ["## Aggregate over datasets", "", "![aggregate](results/locomotion/aggregate.png)", "",
+              "| method | datasets | runs | final IQM [95% CI] | lowest-in-first-10% IQM [95% CI] |",
+              "|---|---|---|---|---|"]
+    for m in methods_in(table):
+        ds = [d for d, per in table.items() if m in per]
+        runs = [r for d in ds for r in table[d][m]["runs"]]
+        lines.append(f"| {m} | {len(ds)} | {len(runs)} | {ci_str([r['final'] for r in runs])} | "
+                     f"{ci_str([r['drop'] for r in runs])} |")
+    lines += ["", "## Per dataset", ""]
+    for d in sorted(table):
+        lines += dataset_table(d, table[d])
+    lines += cost_table(cost)
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def main(args: Args) -> None:
+    text = render(args)
+    tmp = args.out.with_name(f".{args.out.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(args.out)
+    print(text)
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

@@ -1,0 +1,94 @@
+"""benchmarks/results_md.py on hand-made published sweeps: per-run drop/final, claims verdicts, gzip metrics, PNG."""
+
+from __future__ import annotations
+
+import gzip
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from proto_brax import report
+
+ROOT = Path(__file__).resolve().parents[1]
+STEPS = (100, 200, 300, 1000)  # the first 10% of a 1000-step run holds the evaluations at 100 (not 200)
+
+
+def load_module():
+    if "results_md" not in sys.modules:  # registered before it runs: its dataclass needs its module
+        spec = importlib.util.spec_from_file_location("results_md", ROOT / "benchmarks" / "results_md.py")
+        sys.modules["results_md"] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules["results_md"])
+    return sys.modules["results_md"]
+
+
+def curve(method: str, seed: int) -> list[float]:
+    """π₀ at 30; direct collapses early then recovers; PROTO dips a little and ends high; frozen ends lower."""
+    return {"proto-sac": [30.0, 28.0 - seed, 50.0, 80.0 + seed],
+            "direct": [30.0, 5.0 + seed, 40.0, 70.0 + seed],
+            "frozen": [30.0, 31.0, 40.0, 60.0 + seed]}[method]
+
+
+def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2)) -> Path:
+    d = root / dataset / method
+    d.mkdir(parents=True)
+    rows = []
+    for run, seed in enumerate(seeds):
+        base = {"run": run, "seed": seed, "tau": 0.005, "eta": 0.9, "alpha0": 2.0, "dev_pi0": 0.1, "diverged": False,
+                "grid_updates_per_s": 100.0}
+        rows.append({**base, "chunk": -1, "step": 0, "eval_return": 300.0, "normalized_score": 30.0, "initial": True})
+        for c, (step, score) in enumerate(zip(STEPS, curve(method, seed)[1:] + [curve(method, seed)[-1]])):
+            rows.append({**base, "chunk": c, "step": step, "eval_return": 10 * score, "normalized_score": score})
+    with gzip.open(d / "metrics.jsonl.gz", "wt") as f:
+        f.write("\n".join(json.dumps(r) for r in rows) + "\n")
+    (d / "config.json").write_text(json.dumps({"sweep": {"env": dataset.split("-")[0], "algo": method}}))
+    (d / "summary.json").write_text(json.dumps({"env": dataset.split("-")[0], "steps": STEPS[-1], "points": []}))
+    return d
+
+
+@pytest.fixture(scope="module")
+def published(tmp_path_factory):
+    root = tmp_path_factory.mktemp("published")
+    for dataset in ("hopper-medium", "walker2d-medium"):
+        for method in ("proto-sac", "direct", "frozen"):
+            publish(root / "locomotion", dataset, method)
+    cost = {"command": "python benchmarks/methods_cost.py", "date": "today", "env": "hopper", "status": "test",
+            "results": {"proto-sac": {"seconds_per_1e5_steps": 110.0, "ratio_to_proto_sac": 1.0},
+                        "sac-scratch": {"seconds_per_1e5_steps": 100.0, "ratio_to_proto_sac": 100 / 110}}}
+    (root / "cost.json").write_text(json.dumps(cost))
+    return root
+
+
+def test_published_gzip_metrics_load_as_a_sweep(published):
+    sweep = report.load_sweep(published / "locomotion" / "hopper-medium" / "direct")
+    assert len(sweep.runs) == 3 and sweep.metric == "normalized_score"
+
+
+def test_run_scores_follow_the_sweep_definitions(published):
+    mod = load_module()
+    runs = mod.run_scores(report.load_sweep(published / "locomotion" / "hopper-medium" / "direct"))
+    # seed s: evaluations at 100, 200, 300, 1000 are 5 + s, 40, 70 + s, 70 + s; the first 10% is step 100 only
+    assert [(r["initial"], r["drop"], r["final"]) for r in runs] == [(30.0, 5.0, 70.0), (30.0, 6.0, 71.0),
+                                                                     (30.0, 7.0, 72.0)]
+
+
+def test_results_page_states_the_claims_with_numbers(published):
+    mod = load_module()
+    args = mod.Args(results=published / "locomotion", cost=published / "cost.json", bundles=published / "none",
+                    out=published / "RESULTS.md")
+    mod.main(args)
+    text = args.out.read_text()
+    # (1) drop relative to π₀: PROTO (28 - s) - 30 -> -3 on average; direct (5 + s) - 30 -> -24
+    assert "PROTO's drop is smaller on 2 of 2 datasets" in text
+    assert "| hopper-medium | -3.0 | -24.0 |" in text
+    # (2) PROTO 80..82 against Frozen 60..62 on every run: the CIs separate; IQL was not run
+    assert "PROTO ends above Frozen (τ = 0)** on 2 of 2 datasets" in text and "holds (CIs separate)" in text
+    assert "PROTO ends above IQL finetune:** not measured yet" in text
+    assert "= 1.10" in text  # (3) 110 / 100
+    assert "| proto-sac | 2 | 6 | 81.0 [80.2, 81.8] | 27.0 [" in text  # IQM of 80, 81, 82 twice
+    png = published / "locomotion" / "aggregate.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    agg = json.loads((published / "locomotion" / "aggregate.json").read_text())
+    assert agg["frozen"]["iqm"][-1] == pytest.approx(61.0) and agg["direct"]["n_runs"] == 6
