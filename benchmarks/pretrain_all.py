@@ -37,6 +37,8 @@ class Args:
     steps: int = 100_000
     seeds: tuple[int, ...] = (0,)
     workers: int = 2
+    cores: tuple[int, ...] = ()
+    """Core of each worker (default 0, 1, …): two queues at once, e.g. --workers 1 --cores 1 beside another."""
     logs: Path = ROOT / "runs" / "pretrain_all"
 
 
@@ -83,7 +85,8 @@ def main(args: Args) -> None:
         for core in range(args.workers):
             if core not in running and queue:
                 dataset, algo, stale = queue.pop(0)
-                cmd = ["taskset", "-c", str(core % (os.cpu_count() or 1)), sys.executable, "-m", "proto_brax.pretrain",
+                cpu = args.cores[core] if core < len(args.cores) else core % (os.cpu_count() or 1)
+                cmd = ["taskset", "-c", str(cpu), sys.executable, "-m", "proto_brax.pretrain",
                        "--dataset", dataset, "--algo", algo, "--steps", str(args.steps),
                        "--seeds", *map(str, args.seeds), *(["--overwrite"] if stale else [])]
                 log = open(args.logs / f"{dataset}-{algo}.log", "a")
