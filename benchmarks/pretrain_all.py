@@ -44,15 +44,10 @@ class Args:
 
 def cached_hash(dataset: str) -> str | None:
     """Content hash recorded in the cached dataset file (reads only its metadata entry), None if not cached."""
-    import numpy as np
-
-    from proto_brax.datasets import dataset_path
+    from proto_brax.datasets import cached_metadata, dataset_path
 
     path = dataset_path(dataset)
-    if not path.exists():
-        return None
-    with np.load(path, allow_pickle=False) as npz:
-        return json.loads(str(npz["metadata"][()]))["content_hash"]
+    return cached_metadata(path)["content_hash"] if path.exists() else None
 
 
 def pending(args: Args) -> list[tuple[str, str, bool]]:

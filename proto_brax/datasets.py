@@ -54,6 +54,12 @@ def current_snapshots(env_name: str, behavior_root: Path | None = None) -> dict[
     return {"expert": expert.step, "medium": medium.step}
 
 
+def cached_metadata(path: Path) -> dict:
+    """The metadata entry of a cached dataset file, read without loading (or hashing) its arrays."""
+    with np.load(path, allow_pickle=False) as npz:
+        return json.loads(str(npz["metadata"][()]))
+
+
 def stale_reason(meta: dict, behavior_root: Path | None = None) -> str | None:
     """Why a cached dataset no longer matches what ``make`` would generate now (its medium or expert snapshot is not
     the one the current rule picks: new snapshots, or a changed rule), or None when it is current."""

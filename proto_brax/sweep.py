@@ -157,10 +157,12 @@ def _load_dataset(name_or_path: str | None, size: int | None = None):
     from proto_brax.data.generate import dataset_names
 
     if name_or_path in dataset_names():
-        if not datasets.dataset_path(name_or_path, size).exists():
-            print(f"dataset {name_or_path} is not cached: building it "
-                  f"(= {datasets.rebuild_command(name_or_path, size, 0).replace(' --force', '')})", flush=True)
-            datasets.cmd_make(datasets.Make(name=name_or_path, size=size))
+        path = datasets.dataset_path(name_or_path, size)
+        why = "is not cached" if not path.exists() else datasets.stale_reason(datasets.cached_metadata(path))
+        if why:  # missing, or made from other behaviour snapshots than the current rule picks: (re)build it
+            print(f"dataset {name_or_path} {why if why == 'is not cached' else 'is stale (' + why + ')'}: building "
+                  f"it (= {datasets.rebuild_command(name_or_path, size, 0)})", flush=True)
+            datasets.cmd_make(datasets.Make(name=name_or_path, size=size, force=True))
     return datasets.load_dataset(name_or_path, size)  # a file, or an error naming the problem
 
 

@@ -144,3 +144,18 @@ def test_unknown_and_missing_datasets_name_the_fix(tmp_path):
         datasets.load_dataset("point-expert", None, 0, tmp_path)
     with pytest.raises(FileNotFoundError, match="proto_brax.data.behavior --env hopper"):
         g.list_snapshots("hopper", tmp_path)
+
+
+def test_sweep_rebuilds_a_missing_or_stale_dataset(tmp_path, monkeypatch, capsys, medium):
+    from proto_brax import sweep
+    from proto_brax.data.dataset import save_npz
+
+    monkeypatch.setenv(datasets.ENV_VAR, str(tmp_path))
+    data, meta = medium
+    old = {**meta, "medium_snapshot": {**meta["medium_snapshot"], "step": meta["medium_snapshot"]["step"] + 1}}
+    save_npz(datasets.dataset_path("point-medium", 2000), data, old)
+    rebuilt, new_meta = sweep._load_dataset("point-medium", 2000)
+    assert "is stale (it was generated from the medium snapshot" in capsys.readouterr().out
+    assert datasets.stale_reason(new_meta) is None and datasets.stale_reason(datasets.cached_metadata(
+        datasets.dataset_path("point-medium", 2000))) is None
+    assert rebuilt.rewards.shape == (2000,)
