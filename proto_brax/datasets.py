@@ -61,12 +61,15 @@ def cached_metadata(path: Path) -> dict:
 
 
 def stale_reason(meta: dict, behavior_root: Path | None = None) -> str | None:
-    """Why a cached dataset no longer matches what ``make`` would generate now (its medium or expert snapshot is not
-    the one the current rule picks: new snapshots, or a changed rule), or None when it is current."""
-    if meta.get("kind") in (None, "random") or "expert_snapshot" not in meta:
+    """Why a cached dataset no longer matches what ``make`` would generate now (a snapshot its kind is made from —
+    medium for medium and medium-replay, expert for expert, both for medium-expert — is not the one the current rule
+    picks: new snapshots, or a changed rule), or None when it is current."""
+    uses = {"medium": ("medium",), "medium-replay": ("medium",), "expert": ("expert",),
+            "medium-expert": ("medium", "expert")}.get(meta.get("kind"), ())
+    if not uses or "expert_snapshot" not in meta:
         return None
     now = current_snapshots(meta["env"], behavior_root)
-    for which in ("medium", "expert"):
+    for which in uses:
         had = meta[f"{which}_snapshot"]["step"]
         if had != now[which]:
             return f"it was generated from the {which} snapshot at step {had}, the current rule picks step {now[which]}"

@@ -159,3 +159,14 @@ def test_sweep_rebuilds_a_missing_or_stale_dataset(tmp_path, monkeypatch, capsys
     assert datasets.stale_reason(new_meta) is None and datasets.stale_reason(datasets.cached_metadata(
         datasets.dataset_path("point-medium", 2000))) is None
     assert rebuilt.rewards.shape == (2000,)
+
+
+def test_staleness_follows_the_snapshots_a_kind_is_made_from(medium):
+    _, meta = medium
+    moved = {**meta, "medium_snapshot": {**meta["medium_snapshot"], "step": -1}}
+    assert datasets.stale_reason({**moved, "kind": "expert"}) is None  # expert data do not depend on medium
+    for kind in ("medium", "medium-replay", "medium-expert"):
+        assert "medium snapshot at step -1" in datasets.stale_reason({**moved, "kind": kind})
+    moved = {**meta, "expert_snapshot": {**meta["expert_snapshot"], "step": -1}}
+    assert datasets.stale_reason({**moved, "kind": "medium"}) is None
+    assert "expert snapshot" in datasets.stale_reason({**moved, "kind": "expert"})
