@@ -275,12 +275,25 @@ def index_markdown(root: Path) -> str:
         lines.append(f"| `{p.relative_to(root)}` | {m['algo']} | {m.get('dataset', '?')} | {m['seeds']} | {m['steps']} "
                      f"| {ret:.1f} | {score:.1f} |")
     lines += ["", "## Behaviour-policy snapshots (SAC from scratch)", "",
-              "| env | snapshots | steps | final eval return |", "|---|---|---|---|"]
+              "Eval: the training-time evaluation (10 episodes, mean action); behaviour: the stochastic policy that "
+              "generates the datasets (`python -m proto_brax.datasets measure ENV`, 100 episodes). Expert = the final "
+              "snapshot; medium = the behaviour return closest to a normalized ⅓.", "",
+              "| env | snapshots | steps | final eval / behaviour return | medium snapshot | its behaviour return "
+              "(normalized) |", "|---|---|---|---|---|---|"]
+    from proto_brax import envs
+    from proto_brax.data.generate import list_snapshots, pick_expert_medium
+    from proto_brax.datasets import reference_returns
+
     for env_dir in sorted((Path(root) / "behavior").glob("*")):
-        snaps = sorted(env_dir.glob("step_*/metadata.json"))
-        if snaps:
-            last = json.loads(snaps[-1].read_text())
-            lines.append(f"| {env_dir.name} | {len(snaps)} | {last['step']} | {last['eval_return_mean']:.1f} |")
+        snaps = list_snapshots(env_dir.name, Path(root) / "behavior") if any(env_dir.glob("step_*")) else []
+        if not snaps:
+            continue
+        last, beh = snaps[-1], lambda s: s.metadata.get("behavior_return", {}).get("mean", float("nan"))
+        _, med = pick_expert_medium(snaps, reference_returns(envs.get_spec(env_dir.name)))
+        score = float(envs.normalized_score(env_dir.name, beh(med)))
+        f = lambda x: "not measured" if x != x else f"{x:.1f}"  # noqa: E731 (NaN: no behaviour return yet)
+        lines.append(f"| {env_dir.name} | {len(snaps)} | {last.step} | {last.eval_return:.1f} / {f(beh(last))} | "
+                     f"{med.step} | {f(beh(med))} ({f(score)}) |")
     return "\n".join(lines) + "\n"
 
 

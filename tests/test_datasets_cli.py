@@ -170,3 +170,15 @@ def test_staleness_follows_the_snapshots_a_kind_is_made_from(medium):
     moved = {**meta, "expert_snapshot": {**meta["expert_snapshot"], "step": -1}}
     assert datasets.stale_reason({**moved, "kind": "medium"}) is None
     assert "expert snapshot" in datasets.stale_reason({**moved, "kind": "expert"})
+
+
+def test_checkpoint_index_names_expert_and_medium_of_each_env():
+    from proto_brax import envs
+    from proto_brax.checkpoints import index_markdown
+
+    text = index_markdown(Path(__file__).resolve().parents[1] / "checkpoints")
+    for env in ("hopper", "walker2d", "halfcheetah", "ant"):
+        snaps = g.list_snapshots(env)
+        _, med = g.pick_expert_medium(snaps, datasets.reference_returns(envs.get_spec(env)))
+        assert f"| {env} | {len(snaps)} | {snaps[-1].step} | " in text and f" | {med.step} | " in text
+    assert "| point | 6 | 3000 | 48.0 / not measured | 500 |" in text
