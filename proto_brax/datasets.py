@@ -344,8 +344,12 @@ def cmd_list(a: List) -> None:
     for name in dataset_names():
         env, kind = parse_name(name)
         size = default_size(env) * (2 if kind == "medium-expert" else 1)
-        cached = dataset_path(name, None, 0, a.cache_dir).exists()
-        print(f"{name:28s} {size:>9d}  {'cached' if cached else '-'}")
+        path = dataset_path(name, None, 0, a.cache_dir)
+        state = "-"
+        if path.exists():
+            why = stale_reason(cached_metadata(path))
+            state = f"stale ({why}): {rebuild_command(name, None, 0)}" if why else "cached"
+        print(f"{name:28s} {size:>9d}  {state}")
 
 
 def cmd_references(a: References) -> dict:

@@ -82,7 +82,7 @@ def test_measure_records_behavior_returns_and_picks_medium_by_them(tmp_path, cap
     assert f"medium is now the snapshot at step {med.step}" in capsys.readouterr().out
 
 
-def test_a_cached_dataset_from_other_snapshots_is_stale(tmp_path, medium):
+def test_a_cached_dataset_from_other_snapshots_is_stale(tmp_path, medium, capsys):
     from proto_brax.data.dataset import save_npz
 
     data, meta = medium
@@ -92,6 +92,9 @@ def test_a_cached_dataset_from_other_snapshots_is_stale(tmp_path, medium):
     with pytest.raises(CorruptDatasetError, match=r"stale: .*medium snapshot at step .*make point-medium --size 2000 "
                                                   r"--force"):
         datasets.load_dataset("point-medium", 2000, 0, tmp_path)
+    save_npz(datasets.dataset_path("point-medium", None, 0, tmp_path), data, old)  # the default size, for `list`
+    datasets.cmd_list(datasets.List(cache_dir=tmp_path))
+    assert "stale (it was generated from the medium snapshot" in capsys.readouterr().out
 
 
 def test_kinds_are_ordered_and_sized():
