@@ -112,6 +112,11 @@ REGISTRY: dict[str, EnvSpec] = {
     # Point references: mean return over 100 episodes (seed 123) of the uniform policy and of the analytic controller
     # a = clip(-x / 0.2, -1, 1); re-measured by tests/test_engine.py::test_point_references.
     "point": EnvSpec("point", "generalized", episode_length=50, ref_random=0.34, ref_expert=49.0),
+    # AntMaze (proto_brax/antmaze.py): D4RL's sparse-reward eval mazes on MJX; time limits are D4RL's (700 umaze,
+    # 1000 medium/large) and the references are D4RL's antmaze ones (0 / 1), so the score is 100 x success-return.
+    "antmaze-umaze": EnvSpec("antmaze-umaze", "mjx", episode_length=700, ref_random=0.0, ref_expert=1.0),
+    "antmaze-medium": EnvSpec("antmaze-medium", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0),
+    "antmaze-large": EnvSpec("antmaze-large", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0),
 }
 
 
@@ -133,6 +138,10 @@ def make_env(name: str, backend: str | None = None) -> Env:
     check_backend(backend)
     if name == "point":
         return PointReach(backend)
+    if name.startswith("antmaze-"):
+        from proto_brax.antmaze import AntMaze  # imported lazily: brax's import is slow
+
+        return AntMaze(maze=name.removeprefix("antmaze-"), backend=backend, **dict(spec.kwargs))
     from brax import envs as brax_envs  # imported lazily: brax's import is slow
 
     return brax_envs.get_environment(name, backend=backend, **dict(spec.kwargs))
