@@ -20,6 +20,8 @@ import dataclasses
 import datetime
 import os
 import platform
+import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -38,7 +40,7 @@ class Args:
     """Per-method cost benchmark (see the module docstring)."""
 
     quick: bool = False  # tiny networks and chunks: an end-to-end check; timings are meaningless
-    out: str = "benchmarks/results/methods_cost.json"
+    out: str = str(Path(__file__).resolve().parent / "results" / "methods_cost.json")
     env: str = "hopper"
     chunk_steps: int = 2_000  # env steps (= updates) per timed call
     reps: int = 3
@@ -90,7 +92,9 @@ def main(args: Args) -> dict:
     log("method          s / 1e5 steps   × PROTO-SAC")
     for name, r in results.items():
         log(f"{name:<15} {r['seconds_per_1e5_steps']:>12.0f}   {r['ratio_to_proto_sac']:>9.2f}")
-    payload = {"benchmark": "methods_cost", "date": datetime.datetime.now().isoformat(timespec="seconds"),
+    payload = {"benchmark": "methods_cost", "command": " ".join(["python benchmarks/methods_cost.py", *sys.argv[1:]]),
+               "env": args.env, "status": f"median of {args.reps} interleaved repetitions; ratios are the result",
+               "date": datetime.datetime.now().isoformat(timespec="seconds"),
                "args": dataclasses.asdict(args), "machine": platform.processor() or platform.machine(),
                "loadavg_end": list(os.getloadavg()),
                "versions": versions(), "results": results}
