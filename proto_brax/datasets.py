@@ -154,12 +154,10 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
             **({"behavior_return": medium.metadata["behavior_return"]} if measured else {}),
             "rule": (f"{'behaviour return' if measured else 'eval return'} {MEDIUM_RULE}" if reference_returns(spec)
                      else "expert eval / 3")}
-        samplers: dict[str, object] = {}  # one stochastic-policy function per network config: one compile
 
         def snap_policy(s):
             nets, params = g.load_snapshot_actor(s, env)
-            net = json.dumps(s.metadata["config"]["finetune"]["net"], sort_keys=True)
-            return (f"step_{s.step}", samplers.setdefault(net, g.stochastic_policy(nets)), params,
+            return (f"step_{s.step}", g.stochastic_policy(nets), params,
                     {"step": s.step, "eval_return": s.eval_return, "params_hash": g.params_hash(params)})
 
     uniform = ("uniform", g.uniform_param_policy(env.action_size), None, {"step": 0})

@@ -147,17 +147,17 @@ def pick_expert_medium(snaps: list[Snapshot], reference: tuple[float, float] | N
 def behavior_returns(env, horizon: int, snaps: list[Snapshot], episodes: int, seed: int):
     """Yield (snapshot, episode returns [episodes]) of each snapshot's stochastic policy, one compiled program for
     all (the parameters are an argument)."""
-    from proto_brax.train.evaluate import run_episodes
-
-    programs: dict[str, Callable] = {}
     for snap in snaps:
         nets, params = load_snapshot_actor(snap, env)
-        net = repr(snap.metadata["config"]["finetune"]["net"])
-        if net not in programs:
-            policy = stochastic_policy(nets)
-            programs[net] = jax.jit(lambda p, k, policy=policy: run_episodes(
-                env, horizon, functools.partial(policy, p), k, episodes))
-        yield snap, np.asarray(programs[net](params, jax.random.PRNGKey(seed)))
+        yield snap, np.asarray(_episode_returns(env, horizon, stochastic_policy(nets), params,
+                                                jax.random.PRNGKey(seed), episodes))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2, 5))
+def _episode_returns(env, horizon, policy, params, key, episodes):
+    from proto_brax.train.evaluate import run_episodes
+
+    return run_episodes(env, horizon, functools.partial(policy, params), key, episodes)
 
 
 def load_snapshot_actor(snap: Snapshot, env):
@@ -180,9 +180,11 @@ def params_hash(params) -> str:
     return h.hexdigest()[:16]
 
 
+@functools.lru_cache(maxsize=None)
 def stochastic_policy(nets) -> ParamPolicy:
     """The behaviour policy as D4RL used it: actions sampled from the (tanh-Gaussian) SAC actor. The parameters
-    are an argument, so one compiled rollout program serves every snapshot of a training run."""
+    are an argument and the function is cached per (structurally equal) networks, so one compiled rollout program
+    serves every snapshot of a training run."""
     from proto_brax.networks import sample_tanh_gaussian
 
     def policy(params, obs, key):
