@@ -32,6 +32,7 @@ from proto_brax.checkpoints import write_json_atomic  # noqa: E402
 from proto_brax.methods import METHODS  # noqa: E402
 from proto_brax.report import Sweep, load_sweep  # noqa: E402
 from proto_brax.stats import iqm_ci  # noqa: E402
+from proto_brax.sweep import lowest_early_scores  # noqa: E402
 
 ORDER = ("proto-sac", "frozen", "direct", "iql", "sac-scratch", "proto-td3", "proto-bc", "pex", "awac", "calql",
          "off2on", "td3-scratch", "sac-offline")
@@ -53,11 +54,8 @@ def run_scores(sweep: Sweep) -> list[dict]:
         rows = [row for row in r.rows if not row.get("initial")]
         if not rows:
             continue
-        horizon = max(row["step"] for row in rows)
-        early = ([row["normalized_score"] for row in rows if row["step"] <= 0.1 * horizon]
-                 or [rows[0]["normalized_score"]])
         out.append({"seed": r.seed, "initial": init[0]["normalized_score"] if init else math.nan,
-                    "drop": float(min(early)), "final": float(rows[-1]["normalized_score"]),
+                    "drop": float(lowest_early_scores([rows])[0]), "final": float(rows[-1]["normalized_score"]),
                     "diverged": r.diverged, "steps": [row["step"] for row in rows],
                     "curve": [float(row["normalized_score"]) for row in rows]})
     return out
@@ -98,9 +96,14 @@ def ci_str(values) -> str:
     return f"{fmt(m)} [{fmt(lo)}, {fmt(hi)}]"
 
 
-def methods_in(table) -> list[str]:
-    present = {m for per in table.values() for m in per}
+def ordered(methods) -> list[str]:
+    """The paper's methods first, in ORDER, then any others alphabetically."""
+    present = set(methods)
     return [m for m in ORDER if m in present] + sorted(present - set(ORDER))
+
+
+def methods_in(table) -> list[str]:
+    return ordered(m for per in table.values() for m in per)
 
 
 def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
@@ -108,7 +111,7 @@ def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
              "| method | offline | initial (π₀) | lowest in first 10% | final mean ± std | final IQM [95% CI] "
              "| seeds |",
              "|---|---|---|---|---|---|---|"]
-    for m in [m for m in ORDER if m in per] + sorted(set(per) - set(ORDER)):
+    for m in ordered(per):
         runs = per[m]["runs"]
         fin = [r["final"] for r in runs]
         finite = [v for v in fin if math.isfinite(v)]

@@ -158,10 +158,11 @@ def _load_dataset(name_or_path: str | None, size: int | None = None):
 
     if name_or_path in dataset_names():
         path = datasets.dataset_path(name_or_path, size)
-        why = "is not cached" if not path.exists() else datasets.stale_reason(datasets.cached_metadata(path))
-        if why:  # missing, or made from other behaviour snapshots than the current rule picks: (re)build it
-            print(f"dataset {name_or_path} {why if why == 'is not cached' else 'is stale (' + why + ')'}: building "
-                  f"it (= {datasets.rebuild_command(name_or_path, size, 0)})", flush=True)
+        stale = path.exists() and datasets.stale_reason(datasets.cached_metadata(path))
+        if stale or not path.exists():  # made from other behaviour snapshots than the current rule picks, or missing
+            state = f"is stale ({stale})" if stale else "is not cached"
+            print(f"dataset {name_or_path} {state}: building it (= {datasets.rebuild_command(name_or_path, size, 0)})",
+                  flush=True)
             datasets.cmd_make(datasets.Make(name=name_or_path, size=size, force=True))
     return datasets.load_dataset(name_or_path, size)  # a file, or an error naming the problem
 
@@ -337,6 +338,15 @@ def _truncate_metrics(path: Path, chunks_done: int) -> None:
     os.replace(tmp, path)
 
 
+def lowest_early_scores(runs: list[list[dict]], fraction: float = 0.1) -> list[float]:
+    """The paper's initial drop, per run (its evaluation rows after step 0, sorted by step): the lowest normalized
+    score within the first ``fraction`` of the online steps (of the longest run), or the first evaluation's score
+    where none falls inside."""
+    horizon = max(r["step"] for rs in runs for r in rs)
+    return [min([r["normalized_score"] for r in rs if r["step"] <= fraction * horizon] or [rs[0]["normalized_score"]])
+            for rs in runs]
+
+
 def summarize_runs(rows: list[dict], grid_keys: list[str]) -> list[dict]:
     """Per grid point (over seeds): final and average return/normalized score with mean ± std and IQM [95% CI]."""
     from proto_brax.stats import summarize
@@ -357,10 +367,7 @@ def summarize_runs(rows: list[dict], grid_keys: list[str]) -> list[dict]:
         rec["final_dev_pi0"] = summarize([rs[-1]["dev_pi0"] for rs in runs])
         if all(initial):  # π₀ at step 0, and the initial drop: the lowest score within the first 10% of the run
             rec["initial_normalized_score"] = summarize([i[0]["normalized_score"] for i in initial])
-            horizon = max(r["step"] for rs in runs for r in rs)
-            early = [[r["normalized_score"] for r in rs if r["step"] <= 0.1 * horizon] or [rs[0]["normalized_score"]]
-                     for rs in runs]
-            rec["min_normalized_first_10pct"] = summarize([min(e) for e in early])
+            rec["min_normalized_first_10pct"] = summarize(lowest_early_scores(runs))
         out.append(rec)
     return out
 
