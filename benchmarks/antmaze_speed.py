@@ -44,6 +44,8 @@ def mjx_speed(env, batch: int, steps: int, reps: int) -> dict:
     import jax
     import jax.numpy as jnp
 
+    from proto_brax.antmaze import FRAME_SKIP
+
     def rollout(keys):
         state = jax.vmap(env.reset)(keys)
 
@@ -71,7 +73,7 @@ def mjx_speed(env, batch: int, steps: int, reps: int) -> dict:
         "compile_s": compile_s,
         "seconds_per_call": times,
         "control_steps_per_s": batch * steps / seconds,
-        "physics_steps_per_s": 5 * batch * steps / seconds,
+        "physics_steps_per_s": FRAME_SKIP * batch * steps / seconds,
         "final_state_finite": bool(jnp.isfinite(q).all()),
     }
 
@@ -81,7 +83,7 @@ def native_speed(maze: str, n: int, reps: int) -> dict:
     import gymnasium_robotics
     import numpy as np
 
-    from proto_brax.antmaze import maze_map
+    from proto_brax.antmaze import FRAME_SKIP, maze_map
 
     gym.register_envs(gymnasium_robotics)
     env = gym.make(NATIVE_IDS[maze], maze_map=maze_map(maze), continuing_task=True,
@@ -100,7 +102,7 @@ def native_speed(maze: str, n: int, reps: int) -> dict:
     env.close()
     seconds = statistics.median(times)
     return {"steps": n, "seconds_per_rep": times, "control_steps_per_s": n / seconds,
-            "physics_steps_per_s": 5 * n / seconds}
+            "physics_steps_per_s": FRAME_SKIP * n / seconds}
 
 
 def main(args: Args) -> dict:
