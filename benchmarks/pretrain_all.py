@@ -7,7 +7,7 @@ Each pair runs ``python -m proto_brax.pretrain --dataset ENV-KIND --algo ALGO --
 10⁵ steps) into ``checkpoints/pretrained/ENV-KIND/ALGO``; a pair whose bundle exists is skipped, so an interrupted
 queue resumes by running the same command again (a bundle is written atomically at the end of its run). A bundle
 whose ``dataset_content_hash`` differs from the cached dataset's (the dataset was regenerated since) is stale and is
-remade with ``--overwrite``. Datasets are
+remade with ``--overwrite``, as is one without a recorded reward transform. Datasets are
 built into the cache first when missing. ``--workers`` processes run at once, each pinned to one core with XLA's
 single-threaded CPU flags (two such processes do more updates per second in total than one two-threaded process on
 this 2-core machine, shared/FACTS.md). Logs go to runs/pretrain_all/.
@@ -51,7 +51,8 @@ def cached_hash(dataset: str) -> str | None:
 
 
 def pending(args: Args) -> list[tuple[str, str, bool]]:
-    """(dataset, algo, stale) for every bundle to make; stale = it exists but was trained on another dataset."""
+    """(dataset, algo, stale) for every bundle to make; stale = it exists but was trained on another dataset, or on raw
+    rewards (made before bundles recorded their reward transform)."""
     out = []
     for env in args.envs:
         for kind in args.kinds:
@@ -59,7 +60,11 @@ def pending(args: Args) -> list[tuple[str, str, bool]]:
                 meta = ROOT / "checkpoints" / "pretrained" / f"{env}-{kind}" / algo / "metadata.json"
                 if not meta.exists():
                     out.append((f"{env}-{kind}", algo, False))
-                elif (h := cached_hash(f"{env}-{kind}")) and json.loads(meta.read_text())["dataset_content_hash"] != h:
+                    continue
+                m = json.loads(meta.read_text())
+                h = cached_hash(f"{env}-{kind}")
+                # Bundles from before the reward transform trained on raw rewards: the finetuning α then means less.
+                if (h and m["dataset_content_hash"] != h) or "reward_scale" not in m:
                     out.append((f"{env}-{kind}", algo, True))
     return out
 

@@ -116,6 +116,10 @@ class FinetuneConfig:
     episode_length: int | None = None  # None = the env's registered length
     cql_n_actions: int = 10  # CQL / Cal-QL: sampled actions of each kind in the logsumexp (reference codes: 10)
     ensemble_size: int = 5  # Off2On: CQL agents in the pessimistic ensemble (= seeds of its CQL bundle)
+    # Online rewards enter the buffer as reward_scale · r + reward_shift, the transform the offline data and the
+    # pretrained critic were trained with (proto_brax.envs.reward_transform); returns are reported raw.
+    reward_scale: float = 1.0
+    reward_shift: float = 0.0
 
     def __post_init__(self):
         envs.get_spec(self.env)
@@ -133,6 +137,9 @@ class FinetuneConfig:
             raise ValueError(f"steps ({self.steps}) must be a multiple of eval_every ({self.eval_every}).")
         if not 0.0 <= self.offline_fraction <= 1.0:
             raise ValueError(f"offline_fraction must lie in [0, 1]; got {self.offline_fraction}.")
+        if not (np.isfinite(self.reward_scale) and self.reward_scale > 0 and np.isfinite(self.reward_shift)):
+            raise ValueError(f"reward_scale must be finite and > 0, reward_shift finite; got {self.reward_scale}, "
+                             f"{self.reward_shift}.")
         if self.buffer_capacity is not None and self.buffer_capacity < self.num_envs:
             raise ValueError(f"buffer_capacity must be >= num_envs; got {self.buffer_capacity}.")
 

@@ -53,6 +53,12 @@ class EnvSpec:
     ref_random: float | None = None
     ref_expert: float | None = None
     kwargs: tuple[tuple[str, Any], ...] = ()
+    # Training-time reward transform r' = scale · r + shift (evaluation always reports raw returns). "return-range":
+    # scale = 1000 / (max − min episode return of the offline data), as IQL's, IVR's and PROTO's reference code
+    # normalize D4RL locomotion, so that the temperatures α (EQL 2.0, PROTO α₀ 2.0) mean what they mean there;
+    # "none": scale 1. reward_shift: AntMaze's r − 1 (the same codes).
+    reward_scale_rule: str = "return-range"
+    reward_shift: float = 0.0
 
 
 class PointReach(Env):
@@ -111,12 +117,16 @@ REGISTRY: dict[str, EnvSpec] = {
     "ant": EnvSpec("ant", "generalized", ref_random=-6.85, ref_expert=5632.12),
     # Point references: mean return over 100 episodes (seed 123) of the uniform policy and of the analytic controller
     # a = clip(-x / 0.2, -1, 1); re-measured by tests/test_engine.py::test_point_references.
-    "point": EnvSpec("point", "generalized", episode_length=50, ref_random=0.34, ref_expert=49.0),
+    "point": EnvSpec("point", "generalized", episode_length=50, ref_random=0.34, ref_expert=49.0,
+                     reward_scale_rule="none"),  # unit-size rewards already: keeps the test task raw
     # AntMaze (proto_brax/antmaze.py): D4RL's sparse-reward eval mazes on MJX; time limits are D4RL's (700 umaze,
     # 1000 medium/large) and the references are D4RL's antmaze ones (0 / 1), so the score is 100 x success-return.
-    "antmaze-umaze": EnvSpec("antmaze-umaze", "mjx", episode_length=700, ref_random=0.0, ref_expert=1.0),
-    "antmaze-medium": EnvSpec("antmaze-medium", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0),
-    "antmaze-large": EnvSpec("antmaze-large", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0),
+    "antmaze-umaze": EnvSpec("antmaze-umaze", "mjx", episode_length=700, ref_random=0.0, ref_expert=1.0,
+                             reward_scale_rule="none", reward_shift=-1.0),
+    "antmaze-medium": EnvSpec("antmaze-medium", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0,
+                              reward_scale_rule="none", reward_shift=-1.0),
+    "antmaze-large": EnvSpec("antmaze-large", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0,
+                            reward_scale_rule="none", reward_shift=-1.0),
 }
 
 
@@ -155,6 +165,20 @@ def mjx_xla_flags(flags: str | None = None) -> str:
     flag = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
     flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
     return flags if flag in flags else f"{flags} {flag}".strip()
+
+
+def reward_transform(name: str, dataset=None) -> tuple[float, float]:
+    """(scale, shift) of the training-time rewards r' = scale · r + shift for env ``name`` (see ``EnvSpec``).
+
+    "return-range" envs take their scale from ``dataset`` (1 without offline data: online-only runs train on raw
+    rewards).
+    """
+    from proto_brax.data.dataset import return_range_scale
+
+    spec = get_spec(name)
+    if spec.reward_scale_rule == "none" or dataset is None:
+        return 1.0, spec.reward_shift
+    return return_range_scale(dataset), spec.reward_shift
 
 
 def normalized_score(name: str, returns):

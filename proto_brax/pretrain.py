@@ -39,6 +39,12 @@ class PretrainArgs:
     critic_layer_norm: bool | None = None
     """LayerNorm in Q and V; default: on, except halfcheetah (paper)."""
     eval_episodes: int = 10
+    reward_scale: float | None = None
+    """Training rewards are reward_scale · r + reward_shift (evaluation reports raw returns). Default: the env's rule,
+    1000 / (max − min episode return of the dataset) for locomotion as the IQL/IVR/PROTO reference code, 1 for
+    AntMaze and point. Recorded in the bundle; finetuning uses the same transform."""
+    reward_shift: float | None = None
+    """Default: the env's (AntMaze −1, as the reference code; else 0)."""
     hp: dict[str, float] = dataclasses.field(default_factory=dict)
     """Offline hyper-parameters, e.g. --hp alpha 2.0 (see proto_brax.algorithms.insample.OfflineHParams)."""
     out: Path | None = None
@@ -57,18 +63,22 @@ def default_layer_norm(env: str) -> bool:
 def pretrain(args: PretrainArgs) -> dict:
     from proto_brax import __version__, checkpoints, envs
     from proto_brax.algorithms.insample import OfflineHParams
-    from proto_brax.data.dataset import content_hash, validate_for_env, with_returns_to_go
+    from proto_brax.data.dataset import content_hash, transform_rewards, validate_for_env, with_returns_to_go
     from proto_brax.datasets import load_dataset
     from proto_brax.networks import NetworkConfig
     from proto_brax.train.offline import PretrainConfig, make_pretrain, run_pretrain
 
     hp = OfflineHParams.create(**{**ALGO_HP.get(args.algo, {}), **args.hp})
     data, dmeta = load_dataset(args.dataset, args.dataset_size)
-    if args.algo == "calql":
-        data = with_returns_to_go(data, float(hp.gamma))
     env = args.env or (dmeta or {}).get("env")
     if env is None:
         raise ValueError(f"Dataset {args.dataset} does not name its env: pass --env.")
+    data_hash = (dmeta or {}).get("content_hash") or content_hash(data)  # of the data as stored (raw rewards)
+    scale = float(args.reward_scale if args.reward_scale is not None else envs.reward_transform(env, data)[0])
+    shift = float(args.reward_shift if args.reward_shift is not None else envs.get_spec(env).reward_shift)
+    data = transform_rewards(data, scale, shift)
+    if args.algo == "calql":
+        data = with_returns_to_go(data, float(hp.gamma))
     dname = Path(args.dataset).stem if Path(args.dataset).suffix else args.dataset
     out = Path(args.out or Path("checkpoints/pretrained") / dname / args.algo)
     if (out / "metadata.json").exists() and not args.overwrite:
@@ -105,7 +115,8 @@ def pretrain(args: PretrainArgs) -> dict:
         "steps": cfg.steps, "batch_size": cfg.batch_size, "seeds": list(args.seeds),
         "hparams": {k: float(v) for k, v in dataclasses.asdict(hp).items()},
         "dataset": dname, "dataset_size": int(np.asarray(data.rewards).shape[0]),
-        "dataset_content_hash": (dmeta or {}).get("content_hash") or content_hash(data),
+        "dataset_content_hash": data_hash,
+        "reward_scale": scale, "reward_shift": shift,
         "offline_eval": {
             "episodes": cfg.eval_episodes, "returns_per_seed": returns.mean(-1).tolist(),
             "return_mean": float(returns.mean()), "normalized_score_per_seed": scores.tolist(),

@@ -91,6 +91,12 @@ class SweepArgs:
     """Gradient steps of --pretrain."""
     hp: dict[str, float] = dataclasses.field(default_factory=dict)
     """Other traced hyper-parameters, e.g. --hp lr_actor 1e-4 gamma 0.995 (see proto_brax.config.HParams)."""
+    reward_scale: float | None = None
+    """Training rewards are reward_scale · r + reward_shift, offline and online (returns are reported raw). Default:
+    the bundle's (its critic's units); without a bundle the env's rule: 1000 / (max − min episode return of the
+    dataset) for locomotion, as the IQL/IVR/PROTO reference code, 1 without a dataset, for AntMaze and point."""
+    reward_shift: float | None = None
+    """Default: the bundle's, else the env's (AntMaze −1, as the reference code; else 0)."""
     out: Path = Path("runs/sweep")
     """Output directory."""
     overwrite: bool = False
@@ -216,6 +222,24 @@ def resolve_checkpoint(args: SweepArgs) -> Path | None:
             print(f"no committed {kind} bundle for {dataset}: π₀ is a random init (make one: {fix})", flush=True)
         return None
     return Path(args.checkpoint)
+
+
+def reward_transform(args: SweepArgs, bundle_meta: dict | None, dataset) -> dict[str, float]:
+    """{reward_scale, reward_shift} of the runs: the bundle's, whose critic learnt in those units (an explicit value
+    that differs is an error), else the explicit values, else the env's rule on the (raw) dataset."""
+    from proto_brax import envs
+
+    if bundle_meta is not None:  # bundles from before the transform existed trained on raw rewards
+        b = {"reward_scale": float(bundle_meta.get("reward_scale", 1.0)),
+             "reward_shift": float(bundle_meta.get("reward_shift", 0.0))}
+        for k, v in (("reward_scale", args.reward_scale), ("reward_shift", args.reward_shift)):
+            if v is not None and not np.isclose(v, b[k]):
+                raise ValueError(f"--{k.replace('_', '-')} {v}: the bundle was pretrained with {k} {b[k]:.6g} (its "
+                                 f"critic is in those units): drop the flag, or pretrain a bundle with it.")
+        return b
+    scale = envs.reward_transform(args.env, dataset)[0] if args.reward_scale is None else args.reward_scale
+    shift = envs.get_spec(args.env).reward_shift if args.reward_shift is None else args.reward_shift
+    return {"reward_scale": float(scale), "reward_shift": float(shift)}
 
 
 def _load_checkpoint(path: Path | None, cfg, grid, method_name: str = "proto-sac"):
@@ -406,6 +430,8 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     # The bundle is validated (and loaded: a few MB) before any dataset is built or read.
     pretrained, per_run, bmeta = _load_checkpoint(None if args.pretrain else ckpt, cfg, grid, args.algo)
     dataset, dmeta = _load_dataset(dataset_name, args.dataset_size)
+    if args.pretrain is None:
+        cfg = dataclasses.replace(cfg, **reward_transform(args, bmeta, dataset))
     config = {"sweep": sweep_cfg, "method": dataclasses.asdict(method), "finetune": dataclasses.asdict(cfg),
               "grid": list(grid.points),
               "dataset_metadata": dmeta,
@@ -427,9 +453,12 @@ def run_sweep(args: SweepArgs) -> list[dict]:
                                   env=args.env, seeds=seeds,
                                   steps=args.pretrain_steps, log_every=min(10_000, args.pretrain_steps),
                                   hidden=tuple(args.hidden), critic_layer_norm=cfg.net.critic_layer_norm,
+                                  reward_scale=args.reward_scale, reward_shift=args.reward_shift,
                                   out=bundle, overwrite=True))
         pretrained, per_run, bmeta = _load_checkpoint(bundle, cfg, grid, args.algo)
+        cfg = dataclasses.replace(cfg, **reward_transform(args, bmeta, dataset))
         config["checkpoint_metadata"] = bmeta
+        config["finetune"] = dataclasses.asdict(cfg)
         if lead:
             write_json_atomic(Path(args.out) / "config.json", config)
     if jax.process_count() > 1 and args.resume:
@@ -439,7 +468,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     from proto_brax import __version__, checkpoints
     from proto_brax.data.dataset import validate_for_env
     from proto_brax.train.grid import compile_grid, grid_mesh, padded_size, run_grid
-    from proto_brax.data.dataset import with_returns_to_go
+    from proto_brax.data.dataset import transform_rewards, with_returns_to_go
     from proto_brax.train.online import ALGORITHMS, make_finetune
 
     ft = make_finetune(cfg)
@@ -448,6 +477,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
 
         env = make_env(cfg.env, cfg.backend)
         validate_for_env(dataset, env.observation_size, env.action_size, str(dataset_name), env_name=cfg.env)
+        dataset = transform_rewards(dataset, cfg.reward_scale, cfg.reward_shift)
         if ALGORITHMS[cfg.algo].mc_returns:  # Cal-QL's calibration bound: returns-to-go with the runs' γ
             gammas = np.unique(np.asarray(grid.hparams.gamma))
             if gammas.size != 1:

@@ -34,6 +34,7 @@ def test_bundle_round_trip_is_bit_exact(bundle):
     state, meta2 = checkpoints.load_bundle(root / "eql")
     assert meta2["algo"] == "eql" and meta2["seeds"] == [0, 1] and meta2["env"] == "point"
     assert {"returns_per_seed", "normalized_score_mean"} <= set(meta2["offline_eval"])
+    assert (meta2["reward_scale"], meta2["reward_shift"]) == (1.0, 0.0)  # point's rule: raw rewards
     assert state.actor_opt is not None and state.value is not None
     # save again from the restored state and restore: identical leaves (params and optimizer state)
     checkpoints.save_bundle(root / "copy", state, {k: v for k, v in meta2.items() if k != "format_version"})

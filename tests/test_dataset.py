@@ -24,8 +24,11 @@ from proto_brax.data.dataset import (
     load_d4rl_hdf5,
     load_minari,
     load_npz,
+    return_range_scale,
     save_npz,
+    transform_rewards,
     validate_for_env,
+    with_returns_to_go,
 )
 
 HINT = "python -m proto_brax.datasets make hopper-medium"
@@ -486,3 +489,21 @@ def test_episode_returns_by_hand():
     empty = Transition(observations=e1, actions=e1, rewards=e0, next_observations=e1, terminals=e0, timeouts=e0)
     assert episode_returns(empty).shape == (0,)
     assert episode_return_stats(empty)["num_episodes"] == 0
+
+
+def test_reward_transform_by_hand():
+    """The reference codes' locomotion reward scale 1000 / (max − min episode return), and r' = scale · r + shift."""
+    z = np.zeros((7, 1), np.float32)
+    ds = Transition(observations=z, actions=z, rewards=np.array([1, 2, 3, 4, 5, 6, 7], np.float32),
+                    next_observations=z, terminals=np.array([0, 1, 0, 0, 0, 1, 0], np.float32),
+                    timeouts=np.array([0, 0, 0, 1, 0, 0, 0], np.float32))
+    assert return_range_scale(ds) == pytest.approx(1000.0 / (11 - 3))  # episode returns 3, 7, 11, 7
+    out = transform_rewards(ds, 0.5, -1.0)
+    np.testing.assert_array_equal(out.rewards, [-0.5, 0, 0.5, 1, 1.5, 2, 2.5])
+    assert out.rewards.dtype == np.float32 and out.terminals is ds.terminals
+    assert transform_rewards(ds, 1.0, 0.0) is ds
+    with pytest.raises(ValueError, match="before with_returns_to_go"):
+        transform_rewards(with_returns_to_go(ds, 0.99), 2.0, 0.0)
+    one = ds.replace(terminals=np.zeros(7, np.float32), timeouts=np.zeros(7, np.float32))
+    with pytest.raises(ValueError, match="--reward-scale"):
+        return_range_scale(one)

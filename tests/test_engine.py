@@ -285,3 +285,21 @@ def test_regularizer_off_equals_alpha0_zero():
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6), s_on.learner.actor,
                  s_off.learner.actor)
     np.testing.assert_allclose(m_on["eval_return"], m_off["eval_return"], rtol=1e-5)
+
+
+def test_online_rewards_enter_the_buffer_transformed_and_returns_stay_raw():
+    """reward_scale · r + reward_shift in the buffer (the offline data's units); reported returns are raw.
+    No updates (learning_starts > steps), so both runs collect the same trajectories."""
+    base = dataclasses.replace(TINY, steps=100, eval_every=100, eval_episodes=1, learning_starts=10_000)
+    hp = HParams.create(**SCRATCH)
+    runs = []
+    for cfg in (base, dataclasses.replace(base, reward_scale=3.0, reward_shift=-1.0)):
+        ft = online.make_finetune(cfg)
+        state = ft.init(hp, jax.random.PRNGKey(0), None, None)
+        state, m = jax.jit(ft.chunk)(state, hp, None, jnp.asarray(0, jnp.int32))
+        runs.append((np.asarray(state.buffer.data.rewards[:100]), m))
+    (raw, m1), (scaled, m3) = runs
+    assert np.ptp(raw) > 0.1
+    np.testing.assert_allclose(scaled, 3.0 * raw - 1.0, rtol=1e-6, atol=1e-6)
+    for k in ("train_return", "eval_return"):
+        np.testing.assert_allclose(np.asarray(m3[k]), np.asarray(m1[k]), rtol=1e-6, err_msg=k)

@@ -151,10 +151,12 @@ def test_pretrain_then_finetune_in_one_command(tmp_path):
     save_npz(data, jax.device_get(point_dataset()), {"env": "point"})
     args = sweep.parse_args(["--preset", "smoke", "--tau", "0.005", "--alpha0", "1.0", "--seeds", "0", "1",
                              "--dataset", str(data), "--pretrain", "bc", "--pretrain-steps", "300",
-                             "--no-report", "--out", str(tmp_path / "o")])
+                             "--reward-scale", "2.0", "--no-report", "--out", str(tmp_path / "o")])
     sweep.run_sweep(args)
     cfg = json.loads((tmp_path / "o" / "config.json").read_text())
     assert cfg["checkpoint_metadata"]["algo"] == "bc" and cfg["checkpoint_metadata"]["seeds"] == [0, 1]
+    # the reward transform reaches the bundle (its FQE critic) and the finetuning runs alike
+    assert cfg["checkpoint_metadata"]["reward_scale"] == 2.0 and cfg["finetune"]["reward_scale"] == 2.0
     assert (tmp_path / "o" / "pretrained" / "metadata.json").exists()
     with pytest.raises(ValueError, match="--pretrain needs --dataset"):
         sweep.run_sweep(dataclasses.replace(args, dataset=None, out=tmp_path / "x"))
@@ -169,3 +171,27 @@ def test_auto_dataset_and_checkpoint_resolution():
     hm = sweep.resolve_checkpoint(sweep.SweepArgs())
     committed = sweep.REPO_ROOT / "checkpoints" / "pretrained" / "hopper-medium" / "eql"
     assert hm == (committed if (committed / "metadata.json").exists() else None)
+
+
+def test_reward_transform_resolution():
+    """Bundle's transform first (explicit disagreement is an error), then flags, then the env's rule on the data."""
+    from proto_brax.data.dataset import return_range_scale
+    from test_engine import point_dataset
+
+    args = sweep.SweepArgs(env="hopper")
+    assert sweep.reward_transform(args, {"reward_scale": 0.5, "reward_shift": 0.0}, None) == {
+        "reward_scale": 0.5, "reward_shift": 0.0}
+    assert sweep.reward_transform(args, {}, None) == {"reward_scale": 1.0, "reward_shift": 0.0}  # pre-transform bundle
+    with pytest.raises(ValueError, match="pretrained with reward_scale 0.5"):
+        sweep.reward_transform(dataclasses.replace(args, reward_scale=1.0), {"reward_scale": 0.5}, None)
+    assert sweep.reward_transform(dataclasses.replace(args, reward_scale=0.5), {"reward_scale": 0.5}, None)[
+        "reward_scale"] == 0.5
+    data = point_dataset()  # several episodes with different returns: hopper's rule applies to any data
+    assert sweep.reward_transform(args, None, data)["reward_scale"] == pytest.approx(return_range_scale(data))
+    assert sweep.reward_transform(args, None, None) == {"reward_scale": 1.0, "reward_shift": 0.0}  # online only
+    assert sweep.reward_transform(dataclasses.replace(args, reward_scale=3.0, reward_shift=-2.0), None, data) == {
+        "reward_scale": 3.0, "reward_shift": -2.0}
+    assert sweep.reward_transform(sweep.SweepArgs(env="point"), None, data) == {"reward_scale": 1.0,
+                                                                                "reward_shift": 0.0}
+    assert sweep.reward_transform(sweep.SweepArgs(env="antmaze-umaze"), None, None) == {"reward_scale": 1.0,
+                                                                                        "reward_shift": -1.0}

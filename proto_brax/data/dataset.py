@@ -544,6 +544,27 @@ def episode_returns(dataset: OfflineDataset) -> np.ndarray:
     return np.bincount(episode_id, weights=rewards, minlength=int(episode_id[-1]) + 1)
 
 
+def return_range_scale(dataset: OfflineDataset) -> float:
+    """1000 / (max − min episode return): the reward scale IQL's, IVR's and PROTO's reference code apply to D4RL
+    locomotion data (and to the online rewards that join it), so that returns span ~1000 whatever the task."""
+    returns = episode_returns(dataset)
+    spread = float(returns.max() - returns.min()) if returns.size else 0.0
+    if returns.size < 2 or not spread > 0:
+        raise ValueError(f"Cannot normalize rewards by the return range of a dataset with {returns.size} episode(s) "
+                         f"and return spread {spread}: pass an explicit reward scale (--reward-scale).")
+    return 1000.0 / spread
+
+
+def transform_rewards(dataset: OfflineDataset, scale: float, shift: float) -> OfflineDataset:
+    """The dataset with rewards scale · r + shift (float32; returns-to-go must be computed after this)."""
+    if scale == 1.0 and shift == 0.0:
+        return dataset
+    if dataset.mc_returns is not None:
+        raise ValueError("transform_rewards before with_returns_to_go: the returns-to-go would keep the old rewards.")
+    rewards = np.asarray(dataset.rewards, np.float32) * np.float32(scale) + np.float32(shift)
+    return dataset.replace(rewards=rewards)
+
+
 def episode_return_stats(dataset: OfflineDataset) -> dict[str, float | int]:
     """Summary of :func:`episode_returns` for ``info`` commands: ``num_episodes``, ``mean``, ``min``, ``max``.
 

@@ -102,6 +102,8 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
         env_state, transition, done, ret = jax.vmap(lambda s, a, k: envs.env_step(env, horizon, s, a, k))(
             state.env, action, env_keys
         )
+        # Training rewards in the offline data's units; ``ret`` (reported returns) stays raw.
+        transition = transition.replace(rewards=cfg.reward_scale * transition.rewards + cfg.reward_shift)
         if algo.mc_returns:  # the new rows start at 0 and collect their episode's rewards as they come
             transition = transition.replace(mc_returns=jnp.zeros_like(transition.rewards))
             buffer = replay_accumulate_returns(replay_insert(state.buffer, transition), state.buffer.position,
