@@ -22,10 +22,13 @@ What is reproduced, and from where:
   default as gymnasium's Ant and D4RL's ant). gymnasium-robotics v5 builds its ant with ``reset_noise_scale = 0``;
   pass ``reset_noise_scale=0.0`` to reproduce it exactly.
 * **Reward** is D4RL's sparse ``1[‖xy − goal‖ ≤ 0.5]`` (gymnasium-robotics uses 0.45; D4RL's scores use 0.5),
-  computed on the state after the step. There is no termination on success: D4RL's antmaze ``-v2`` tasks run to the
-  time limit (700 umaze, 1000 medium/large; the registry holds it), and gymnasium-robotics with
-  ``continuing_task=True, reset_target=False`` keeps the goal where it is. ``done`` is 1 only if the physics state
-  stops being finite, so a blown-up simulation ends its episode instead of poisoning a replay buffer.
+  computed on the state after the step. Reaching the goal **terminates** the episode (``terminate_on_success``, the
+  default): D4RL registers its antmaze tasks with ``eval=True``, whose ``step`` ends the episode at the goal, and
+  PROTO's and IQL's online runs use those envs, so a return is 0 or 1 (the success flag) and the episode length is
+  the steps to the goal (the paper's Figure 5). D4RL *collected* its datasets without it (the planner keeps going,
+  timeouts every 1000 steps): ``terminate_on_success=False``, as gymnasium-robotics' ``continuing_task=True``. The
+  time limits are D4RL's (700 umaze, 1000 medium/large; the registry holds them). ``done`` is also 1 if the physics
+  state stops being finite, so a blown-up simulation ends its episode instead of poisoning a replay buffer.
   ``metrics["success"]`` repeats the reward as the success flag evaluations read.
 
 **Observation layout** (29 dims, ``goal_in_obs=False``)::
@@ -264,8 +267,9 @@ class AntMaze(PipelineEnv):
 
     ``maze`` is a name of ``MAZES`` ("umaze", "medium", "large") or a gymnasium-robotics style map (list of rows of
     0 / 1 / 'r' / 'g' / 'c'). ``reset_noise_scale`` is the ant's joint reset noise (0 = gymnasium-robotics v5).
-    ``goal_in_obs`` appends the goal xy to the observation. Other keyword arguments (contact bounds, solver caps)
-    go to ``maze_xml``.
+    ``goal_in_obs`` appends the goal xy to the observation. ``terminate_on_success`` ends the episode at the goal
+    (D4RL's evaluation tasks; off to collect data). Other keyword arguments (contact bounds, solver caps) go to
+    ``maze_xml``.
     """
 
     def __init__(
@@ -274,6 +278,7 @@ class AntMaze(PipelineEnv):
         backend: str = "mjx",
         reset_noise_scale: float = 0.1,
         goal_in_obs: bool = False,
+        terminate_on_success: bool = True,
         **xml_kwargs,
     ):
         if backend != "mjx":
@@ -289,6 +294,7 @@ class AntMaze(PipelineEnv):
         self._goal_xy = jnp.asarray(np.stack([cell_to_xy(c, layout) for c in goals]), jnp.float32)
         self._reset_noise_scale = reset_noise_scale
         self._goal_in_obs = goal_in_obs
+        self._terminate_on_success = terminate_on_success
 
     def reset(self, rng: jax.Array) -> State:
         k_cells, k_q, k_qd = jax.random.split(rng, 3)
@@ -309,6 +315,8 @@ class AntMaze(PipelineEnv):
         reward, dist = sparse_reward(pipeline_state.q[:2], goal)
         finite = jnp.all(jnp.isfinite(pipeline_state.q)) & jnp.all(jnp.isfinite(pipeline_state.qd))
         done = 1.0 - finite.astype(jnp.float32)
+        if self._terminate_on_success:
+            done = jnp.maximum(done, reward)
         # A blown-up state ends the episode; zeroing its observation keeps the terminal transition finite (its next
         # observation is never bootstrapped from, but NaN * 0 would still poison a critic target).
         obs = jnp.where(finite, self._obs(pipeline_state, goal), 0.0)

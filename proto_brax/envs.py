@@ -59,6 +59,7 @@ class EnvSpec:
     # "none": scale 1. reward_shift: AntMaze's r − 1 (the same codes).
     reward_scale_rule: str = "return-range"
     reward_shift: float = 0.0
+    goal_task: bool = False  # episodes end at the goal with return 1: reports add success rate and steps to goal
 
 
 class PointReach(Env):
@@ -122,11 +123,11 @@ REGISTRY: dict[str, EnvSpec] = {
     # AntMaze (proto_brax/antmaze.py): D4RL's sparse-reward eval mazes on MJX; time limits are D4RL's (700 umaze,
     # 1000 medium/large) and the references are D4RL's antmaze ones (0 / 1), so the score is 100 x success-return.
     "antmaze-umaze": EnvSpec("antmaze-umaze", "mjx", episode_length=700, ref_random=0.0, ref_expert=1.0,
-                             reward_scale_rule="none", reward_shift=-1.0),
+                             reward_scale_rule="none", reward_shift=-1.0, goal_task=True),
     "antmaze-medium": EnvSpec("antmaze-medium", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0,
-                              reward_scale_rule="none", reward_shift=-1.0),
+                              reward_scale_rule="none", reward_shift=-1.0, goal_task=True),
     "antmaze-large": EnvSpec("antmaze-large", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0,
-                            reward_scale_rule="none", reward_shift=-1.0),
+                            reward_scale_rule="none", reward_shift=-1.0, goal_task=True),
 }
 
 

@@ -314,6 +314,20 @@ def _prepare_out(args: SweepArgs, config: dict) -> None:
     write_json_atomic(out / "config.json", config)
 
 
+def episode_stats(env: str, returns, lengths) -> dict[str, float]:
+    """Mean evaluation episode length; on a goal task (``EnvSpec.goal_task``: return 1 at the goal, which ends the
+    episode) also the success rate and the mean steps to the goal of the successful episodes (the paper's Fig. 5)."""
+    from proto_brax.envs import get_spec
+
+    returns, lengths = np.asarray(returns), np.asarray(lengths)
+    out = {"eval_length": float(lengths.mean())}
+    if get_spec(env).goal_task:
+        success = returns > 0
+        out["success_rate"] = float(success.mean())
+        out["steps_to_goal"] = float(lengths[success].mean()) if success.any() else float("nan")
+    return out
+
+
 def _rows(chunk: int, m: dict, grid, env: str, updates_per_s: float) -> list[dict]:
     from proto_brax.envs import normalized_score
 
@@ -325,6 +339,7 @@ def _rows(chunk: int, m: dict, grid, env: str, updates_per_s: float) -> list[dic
         row["step"] = int(m["step"][i])
         row["normalized_score"] = float(normalized_score(env, row["eval_return"]))
         row["eval_returns"] = [float(x) for x in m["eval_returns"][i]]
+        row.update(episode_stats(env, m["eval_returns"][i], m["eval_lengths"][i]))
         row["diverged"] = not all(np.isfinite(row[k]) for k in ("eval_return", "critic_loss", "q_mean"))
         row["grid_updates_per_s"] = updates_per_s
         rows.append(row)
@@ -389,6 +404,9 @@ def summarize_runs(rows: list[dict], grid_keys: list[str]) -> list[dict]:
             rec[f"final_{key}"] = summarize([rs[-1][key] for rs in runs])
             rec[f"average_{key}"] = summarize([np.mean([r[key] for r in rs]) for rs in runs])
         rec["final_dev_pi0"] = summarize([rs[-1]["dev_pi0"] for rs in runs])
+        if all("success_rate" in rs[-1] for rs in runs):  # goal tasks: the paper's success and steps to goal
+            rec["final_success_rate"] = summarize([rs[-1]["success_rate"] for rs in runs])
+            rec["final_steps_to_goal"] = summarize([rs[-1]["steps_to_goal"] for rs in runs])
         if all(initial):  # π₀ at step 0, and the initial drop: the lowest score within the first 10% of the run
             rec["initial_normalized_score"] = summarize([i[0]["normalized_score"] for i in initial])
             rec["min_normalized_first_10pct"] = summarize(lowest_early_scores(runs))
@@ -527,7 +545,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         bar.set_postfix(eval=f"{np.mean(finite) if finite else float('nan'):.1f}", upd_s=f"{updates_per_s:.0f}")
 
     program = compile_grid(ft, mesh, per_run)
-    def on_start(returns):
+    def on_start(returns, lengths):
         """π₀ at step 0 (chunk −1): the reference of the initial drop; curves start there."""
         if not lead:
             return
@@ -536,6 +554,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         rows = [{"chunk": -1, "run": i, **point, "step": 0, "eval_return": float(np.mean(returns[i])),
                  "eval_returns": [float(x) for x in returns[i]],
                  "normalized_score": float(normalized_score(cfg.env, float(np.mean(returns[i])))),
+                 **episode_stats(cfg.env, returns[i], lengths[i]),
                  "diverged": not bool(np.all(np.isfinite(returns[i]))), "initial": True,
                  "dev_pi0": 0.0, "dev_pibar": 0.0, "grid_updates_per_s": float("nan")}
                 for i, point in enumerate(grid.points)]

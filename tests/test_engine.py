@@ -20,7 +20,7 @@ from proto_brax.data.generate import collect, flatten_env_major, uniform_policy
 from proto_brax.data.replay import replay_init, replay_insert, replay_sample
 from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train import online
-from proto_brax.train.evaluate import run_episodes
+from proto_brax.train.evaluate import run_episodes, run_episodes_with_lengths
 from proto_brax.train.grid import make_grid, run_grid
 
 TINY = FinetuneConfig(
@@ -86,6 +86,37 @@ def test_point_references():
         ret = jax.jit(lambda k, pol=pol: run_episodes(env, 50, pol, k, 100))(jax.random.PRNGKey(123))
         assert abs(float(ret.mean()) - ref) < 0.05
     np.testing.assert_allclose(envs.normalized_score("point", [spec.ref_random, spec.ref_expert]), [0.0, 100.0])
+
+
+def test_episode_lengths_count_steps_to_termination():
+    """Pushing right ends each point episode when |x| > 1.9; its length and return follow from the start by hand.
+    Standing still runs to the horizon."""
+    env = envs.make_env("point")
+    key = jax.random.PRNGKey(5)
+    fn = jax.jit(lambda k, pol: run_episodes_with_lengths(env, 30, pol, k, 6), static_argnums=1)
+    push = lambda obs, k: jnp.ones((obs.shape[0], 2))  # noqa: E731
+    ret, length = fn(key, push)
+    starts = jax.vmap(env.reset)(jax.random.split(jax.random.split(key)[0], 6)).pipeline_state
+    for x0, r, n in zip(np.asarray(starts), np.asarray(ret), np.asarray(length)):
+        x, steps, total = x0.astype(np.float32), 0, 0.0
+        while True:  # the env's float32 arithmetic, step by step
+            x = x + np.float32(0.2) * np.float32(1.0)
+            steps, total = steps + 1, total + 1.0 - float(np.linalg.norm(x))
+            if np.max(np.abs(x)) > 1.9:
+                break
+        assert n == steps and 5 <= n <= 15
+        np.testing.assert_allclose(r, total, rtol=1e-5)
+    still = lambda obs, k: jnp.zeros((obs.shape[0], 2))  # noqa: E731
+    np.testing.assert_array_equal(fn(key, still)[1], 30)
+
+
+def test_goal_task_episode_stats():
+    from proto_brax.sweep import episode_stats
+
+    stats = episode_stats("antmaze-umaze", [1.0, 0.0, 1.0], [100, 700, 300])
+    assert stats == pytest.approx({"eval_length": 1100 / 3, "success_rate": 2 / 3, "steps_to_goal": 200.0})
+    assert np.isnan(episode_stats("antmaze-umaze", [0.0, 0.0], [700, 700])["steps_to_goal"])
+    assert episode_stats("hopper", [10.0, 20.0], [50, 150]) == {"eval_length": 100.0}
 
 
 # ----------------------------------------------------------------------------------------------------------- replay

@@ -163,7 +163,7 @@ def test_baseline_improves_a_weak_bundle_online(name, kind):
     score = np.asarray(envs.normalized_score("point", m["eval_return"]))
     assert np.all(np.isfinite(m["critic_loss"])) and score0 < 50.0 and score[-1] >= 80.0, (name, score0, score)
     if name == "pex":  # the new policy, on its own, learned too (it starts from a random init)
-        alone = make_finetune(dataclasses.replace(cfg, algo="sac")).evaluate(final.learner, jax.random.PRNGKey(1))
+        alone = make_finetune(dataclasses.replace(cfg, algo="sac")).evaluate(final.learner, jax.random.PRNGKey(1))[0]
         assert envs.normalized_score("point", float(jnp.mean(alone))) >= 80.0
 
 

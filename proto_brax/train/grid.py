@@ -130,7 +130,7 @@ class GridProgram:
 
     init: Callable  # (hparams[G], keys[G], pretrained, dataset) -> state[G]
     chunk: Callable  # (state[G], hparams[G], dataset, start) -> (state[G], metrics[G])
-    initial_eval: Callable  # state[G] -> returns[G, eval_episodes] of π₀ (before any online step); state unchanged
+    initial_eval: Callable  # state[G] -> (returns, lengths) [G, eval_episodes] of π₀ (before any online step)
 
 
 def compile_grid(ft, mesh: Mesh, per_run_pretrained: bool = False) -> GridProgram:
@@ -156,7 +156,7 @@ def run_grid(
     ft, grid: Grid, pretrained=None, dataset=None, mesh: Mesh | None = None,
     program: GridProgram | None = None, callback: Callable[[int, dict, Any], None] | None = None,
     restore: Callable[[Any], tuple[Any, int]] | None = None, per_run_pretrained: bool = False,
-    on_start: Callable[[np.ndarray], None] | None = None,
+    on_start: Callable[[np.ndarray, np.ndarray], None] | None = None,
 ):
     """Run every point of ``grid`` to the end in one compiled program, sharded over ``mesh``.
 
@@ -164,7 +164,8 @@ def run_grid(
     ``pretrained`` is shared by every run, or (``per_run_pretrained``) has a leading axis of grid.size entries.
     ``callback(chunk_index, metrics, state)`` sees each chunk's host metrics and the (padded, sharded) state, e.g. to
     log and checkpoint; ``restore(initial_state) -> (state, chunks_done)`` resumes an interrupted run;
-    ``on_start(returns[grid.size, eval_episodes])`` receives π₀'s step-0 evaluation (not called on a resume).
+    ``on_start(returns, lengths)`` (each [grid.size, eval_episodes]) receives π₀'s step-0 evaluation (not called on a
+    resume).
     """
     mesh = mesh or grid_mesh()
     program = program or compile_grid(ft, mesh, per_run_pretrained)
@@ -181,7 +182,8 @@ def run_grid(
     if restore is not None:
         state, start = restore(state)
     if on_start is not None and start == 0:
-        on_start(np.asarray(host_gather(program.initial_eval(state)))[: grid.size])
+        returns, lengths = host_gather(program.initial_eval(state))
+        on_start(np.asarray(returns)[: grid.size], np.asarray(lengths)[: grid.size])
     history = []
     for c in range(start, ft.cfg.num_chunks):
         start_step = replicate(jnp.asarray(c * ft.cfg.eval_every, jnp.int32), mesh)
