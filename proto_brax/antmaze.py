@@ -332,3 +332,106 @@ class AntMaze(PipelineEnv):
     @property
     def observation_size(self) -> int:
         return self.sys.q_size() + self.sys.qd_size() + (2 if self._goal_in_obs else 0)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# Goal reaching on the open floor: the low-level controller of the AntMaze datasets
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def ant_yaw(quat: jax.Array) -> jax.Array:
+    """Yaw (rotation about world z) of a (w, x, y, z) quaternion."""
+    w, x, y, z = quat[..., 0], quat[..., 1], quat[..., 2], quat[..., 3]
+    return jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def heading_to(xy: jax.Array, target: jax.Array) -> jax.Array:
+    d = target - xy
+    return jnp.arctan2(d[..., 1], d[..., 0])
+
+
+def rotate_ant_obs(obs: jax.Array, theta: jax.Array) -> jax.Array:
+    """Ant observation ``qpos[2:15] ++ qvel[0:14]`` (27) as seen from a frame turned by ``theta`` about z.
+
+    The floor is flat, so the ant's dynamics do not depend on its heading: in the turned frame, "towards angle θ" is
+    +x. Two parts change: the torso quaternion is pre-multiplied by R(−θ), and the world-frame linear velocity
+    ``qvel[0:3]`` is turned by R(−θ). The free joint's angular velocity ``qvel[3:6]`` is in the torso's own frame
+    (MuJoCo's convention) and the joint angles are body-relative, so they stay as they are.
+    """
+    half = -0.5 * theta
+    rw, rz = jnp.cos(half), jnp.sin(half)  # R(−θ) as the quaternion (rw, 0, 0, rz)
+    w, x, y, z = obs[..., 1], obs[..., 2], obs[..., 3], obs[..., 4]
+    quat = jnp.stack([rw * w - rz * z, rw * x - rz * y, rw * y + rz * x, rw * z + rz * w], -1)  # R(−θ) ⊗ q
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    vx, vy = obs[..., 13], obs[..., 14]
+    vel = jnp.stack([c * vx + s * vy, -s * vx + c * vy], -1)
+    return jnp.concatenate([obs[..., :1], quat, obs[..., 5:13], vel, obs[..., 15:]], -1)
+
+
+class AntGoal(AntMaze):
+    """Goal reaching with AntMaze's ant and physics on an open floor: the controller the AntMaze datasets steer.
+
+    D4RL made its AntMaze data with a goal-reaching ant driven by a waypoint planner; this is the task that ant
+    learns here (SAC from scratch, ``python -m proto_brax.data.behavior --env ant-goal``). Goals are drawn at
+    ``goal_distance`` (uniform range, metres) in a uniform direction from the ant; reaching one (0.5 m, as AntMaze)
+    draws the next from where the ant is, so an episode holds several and the ant learns to turn. The observation is
+    the ant's 27-dim state seen from the frame whose +x points at the goal (``rotate_ant_obs``), which is all the
+    maze planner then needs to supply: the direction of the next waypoint. Reward (gymnasium Ant's terms, with
+    progress in place of forward velocity): velocity towards the goal + 1 while healthy − 0.5 ‖a‖²; the episode ends
+    when the torso leaves z ∈ [0.2, 1.0] or turns upside down (gymnasium's z test alone lets a flipped ant, torso at
+    0.27 m, count as healthy).
+    """
+
+    def __init__(self, backend: str = "mjx", goal_distance: tuple[float, float] = (2.0, 6.0),
+                 reset_noise_scale: float = 0.1, **xml_kwargs):
+        super().__init__([[0] * 3 for _ in range(3)], backend=backend, reset_noise_scale=reset_noise_scale,
+                         terminate_on_success=False, **xml_kwargs)  # no wall cell: the floor alone
+        self._goal_distance = goal_distance
+
+    def _new_goal(self, key: jax.Array, xy: jax.Array) -> jax.Array:
+        k_d, k_a = jax.random.split(key)
+        d = jax.random.uniform(k_d, (), minval=self._goal_distance[0], maxval=self._goal_distance[1])
+        a = jax.random.uniform(k_a, (), minval=-jnp.pi, maxval=jnp.pi)
+        return xy + d * jnp.stack([jnp.cos(a), jnp.sin(a)])
+
+    def reset(self, rng: jax.Array) -> State:
+        k_goal, k_q, k_qd, k_next = jax.random.split(rng, 4)
+        c = self._reset_noise_scale
+        q = self.sys.init_q + jax.random.uniform(k_q, (self.sys.q_size(),), minval=-c, maxval=c)
+        q = q.at[:2].set(0.0)
+        pipeline_state = self.pipeline_init(q, c * jax.random.normal(k_qd, (self.sys.qd_size(),)))
+        goal = self._new_goal(k_goal, pipeline_state.q[:2])
+        zero = jnp.zeros(())
+        metrics = {"goals_reached": zero, "goal_distance": jnp.linalg.norm(goal - pipeline_state.q[:2]),
+                   "progress": zero}
+        return State(pipeline_state, self._goal_obs(pipeline_state, goal), zero, zero, metrics,
+                     {"goal": goal, "key": k_next})
+
+    def step(self, state: State, action: jax.Array) -> State:
+        pipeline_state = self.pipeline_step(state.pipeline_state, action)
+        goal, xy0, xy = state.info["goal"], state.pipeline_state.q[:2], pipeline_state.q[:2]
+        u = (goal - xy0) / jnp.maximum(jnp.linalg.norm(goal - xy0), 1e-6)
+        progress = jnp.dot(xy - xy0, u) / self.dt
+        z = pipeline_state.q[2]
+        quat = pipeline_state.q[3:7]
+        upright = 1.0 - 2.0 * (quat[1] ** 2 + quat[2] ** 2)  # world z of the torso's z axis
+        finite = jnp.all(jnp.isfinite(pipeline_state.q)) & jnp.all(jnp.isfinite(pipeline_state.qd))
+        healthy = (z >= 0.2) & (z <= 1.0) & (upright > 0.0) & finite
+        reward = progress + 1.0 - 0.5 * jnp.sum(jnp.square(action))
+        key, k_goal = jax.random.split(state.info["key"])
+        reached = jnp.linalg.norm(xy - goal) <= GOAL_RADIUS
+        goal = jnp.where(reached, self._new_goal(k_goal, xy), goal)
+        obs = jnp.where(finite, self._goal_obs(pipeline_state, goal), 0.0)
+        metrics = {"goals_reached": state.metrics["goals_reached"] + reached,
+                   "goal_distance": jnp.linalg.norm(goal - xy), "progress": progress}
+        return state.replace(pipeline_state=pipeline_state, obs=obs, reward=jnp.where(finite, reward, 0.0),
+                             done=1.0 - healthy.astype(jnp.float32), metrics=metrics,
+                             info={**state.info, "goal": goal, "key": key})
+
+    def _goal_obs(self, pipeline_state, goal: jax.Array) -> jax.Array:
+        q, qd = pipeline_state.q, pipeline_state.qd
+        return rotate_ant_obs(jnp.concatenate([q[2:], qd]), heading_to(q[:2], goal))
+
+    @property
+    def observation_size(self) -> int:
+        return self.sys.q_size() + self.sys.qd_size() - 2

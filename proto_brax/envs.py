@@ -122,6 +122,8 @@ REGISTRY: dict[str, EnvSpec] = {
                      reward_scale_rule="none"),  # unit-size rewards already: keeps the test task raw
     # AntMaze (proto_brax/antmaze.py): D4RL's sparse-reward eval mazes on MJX; time limits are D4RL's (700 umaze,
     # 1000 medium/large) and the references are D4RL's antmaze ones (0 / 1), so the score is 100 x success-return.
+    # Goal reaching on AntMaze's physics (open floor): the low-level controller the AntMaze datasets steer.
+    "ant-goal": EnvSpec("ant-goal", "mjx", episode_length=1000, reward_scale_rule="none"),
     "antmaze-umaze": EnvSpec("antmaze-umaze", "mjx", episode_length=700, ref_random=0.0, ref_expert=1.0,
                              reward_scale_rule="none", reward_shift=-1.0, goal_task=True),
     "antmaze-medium": EnvSpec("antmaze-medium", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0,
@@ -149,6 +151,10 @@ def make_env(name: str, backend: str | None = None) -> Env:
     check_backend(backend)
     if name == "point":
         return PointReach(backend)
+    if name == "ant-goal":
+        from proto_brax.antmaze import AntGoal  # imported lazily: brax's import is slow
+
+        return AntGoal(backend=backend, **dict(spec.kwargs))
     if name.startswith("antmaze-"):
         from proto_brax.antmaze import AntMaze  # imported lazily: brax's import is slow
 

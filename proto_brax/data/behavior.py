@@ -7,6 +7,7 @@ parameters only: small, committed). The full training state (including the repla
 under ``--resume-dir`` so an interrupted run resumes where it stopped.
 
     python -m proto_brax.data.behavior --env hopper --steps 300000
+    python -m proto_brax.data.behavior --env ant-goal --steps 300000 --snapshot-every 10000   # AntMaze's controller
 """
 
 from __future__ import annotations
@@ -93,6 +94,11 @@ def train_behavior(args: Args) -> list[dict]:
 
 
 if __name__ == "__main__":
+    import os
+
     import tyro
 
-    train_behavior(tyro.cli(Args))
+    args = tyro.cli(Args)
+    if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":  # before JAX starts its backend
+        os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
+    train_behavior(args)
