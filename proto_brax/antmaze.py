@@ -297,9 +297,14 @@ class AntMaze(PipelineEnv):
         self._terminate_on_success = terminate_on_success
 
     def reset(self, rng: jax.Array) -> State:
-        k_cells, k_q, k_qd = jax.random.split(rng, 3)
+        k_cells, k_ant = jax.random.split(rng)
         xy, goal = sample_start_and_goal(k_cells, self._reset_xy, self._goal_xy)
-        # gymnasium Ant's reset noise on the joints (the torso xy noise comes from the cell above).
+        return self.reset_at(k_ant, xy, goal)
+
+    def reset_at(self, rng: jax.Array, xy: jax.Array, goal: jax.Array) -> State:
+        """A fresh episode with the torso at ``xy`` and the goal at ``goal`` (dataset collection picks its own)."""
+        k_q, k_qd = jax.random.split(rng)
+        # gymnasium Ant's reset noise on the joints (the torso xy noise comes with the cell).
         c = self._reset_noise_scale
         q_rest = self.sys.init_q[2:] + jax.random.uniform(k_q, (self.sys.q_size() - 2,), minval=-c, maxval=c)
         qvel = c * jax.random.normal(k_qd, (self.sys.qd_size(),))

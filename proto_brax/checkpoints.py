@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -58,7 +59,7 @@ def save(path: str | os.PathLike, tree: Any, metadata: dict[str, Any]) -> None:
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
     ckptr = ocp.StandardCheckpointer()
-    ckptr.save(tmp / "state", jax.device_get(tree))
+    ckptr.save(tmp / "state", _drop_empty(jax.device_get(tree)))
     ckptr.wait_until_finished()
     write_json_atomic(tmp / "metadata.json", {**metadata, "format_version": FORMAT_VERSION})
     if path.exists():
@@ -106,6 +107,12 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
     return meta
 
 
+def _drop_empty(tree):
+    """Zero-size arrays (MJX states hold some, e.g. ``act`` without actuator activations) as None: orbax refuses to
+    save them, and they carry no data; ``restore`` recreates them from the target's shapes."""
+    return jax.tree.map(lambda x: None if np.size(x) == 0 else x, tree)
+
+
 def _is_namedtuple(x) -> bool:
     return isinstance(x, tuple) and hasattr(x, "_fields")
 
@@ -145,9 +152,12 @@ def _reconcile(t, disk, where: str = ""):
 
 
 def _rebuild(t, r):
-    """Put restored values back into the target's own types (dataclasses, namedtuples); absent fields stay None."""
+    """Put restored values back into the target's own types (dataclasses, namedtuples); absent fields stay None;
+    zero-size arrays (saved as None) come back as zeros of the target's shape."""
     if t is None:
         return None
+    if isinstance(t, jax.ShapeDtypeStruct) and math.prod(t.shape) == 0:
+        return np.zeros(t.shape, t.dtype)
     if dataclasses.is_dataclass(t) and not isinstance(t, type):
         return t.replace(**{f.name: _rebuild(getattr(t, f.name), (r or {}).get(f.name))
                             for f in dataclasses.fields(t)})
@@ -173,7 +183,7 @@ def restore(path: str | os.PathLike, target: Any) -> tuple[Any, dict[str, Any]]:
     try:
         ckptr = ocp.StandardCheckpointer()
         on_disk = ckptr.metadata(path / "state").item_metadata.tree
-        restored = ckptr.restore(path / "state", _reconcile(_plain(abstract), on_disk))
+        restored = ckptr.restore(path / "state", _reconcile(_plain(_drop_empty(abstract)), on_disk))
         tree = _rebuild(abstract, restored)
     except Exception as e:  # orbax raises several types for missing/corrupt/mismatched arrays
         raise CheckpointError(

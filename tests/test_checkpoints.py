@@ -170,3 +170,16 @@ def test_checkpoint_predating_an_optional_field_still_restores(tmp_path):
         np.testing.assert_array_equal(a, b)
     with pytest.raises(checkpoints.CheckpointError, match="Could not restore"):
         checkpoints.restore(tmp_path / "c", target.replace(added={"b": jnp.zeros(2)}))
+
+
+def test_zero_size_arrays_round_trip(tmp_path):
+    """MJX states hold zero-size arrays (``act`` without activations) that orbax refuses to save: they come back
+    with their shapes, next to the real data."""
+    tree = {"act": np.zeros((4, 0), np.float32), "q": np.arange(6, dtype=np.float32).reshape(2, 3),
+            "empty_int": np.zeros((0,), np.int32), "none": None}
+    checkpoints.save(tmp_path / "z", tree, {"k": 1})
+    back, meta = checkpoints.restore(tmp_path / "z", tree)
+    assert meta["k"] == 1 and back["none"] is None
+    for k in ("act", "q", "empty_int"):
+        assert back[k].shape == tree[k].shape and back[k].dtype == tree[k].dtype
+    np.testing.assert_array_equal(back["q"], tree["q"])
