@@ -108,6 +108,11 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     from proto_brax.data import generate as g
 
     env_name, kind = g.parse_name(name)
+    if env_name in g.ANTMAZE_ENVS:
+        from proto_brax.data.antmaze_data import make_antmaze_dataset
+
+        return make_antmaze_dataset(env_name.removeprefix("antmaze-"), kind, size or g.default_size(env_name), seed,
+                                    num_envs, progress=progress)
     if kind == "medium-expert":  # D4RL: the concatenation of the medium and expert datasets
         parts = dict(parts or {})
         for sub in ("medium", "expert"):

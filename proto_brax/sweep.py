@@ -77,7 +77,7 @@ class SweepArgs:
     """Share of each batch from the offline data in symmetric mode."""
     dataset: str | None = "auto"
     """Offline data: a registered name (e.g. hopper-medium; built into the cache if missing), a file (our .npz, or a
-    D4RL-format .hdf5), 'auto' = ENV-medium, or 'none' (online data only)."""
+    D4RL-format .hdf5), 'auto' = ENV-medium (AntMaze: ENV-diverse), or 'none' (online data only)."""
     dataset_size: int | None = 100_000
     """Transitions of a registered dataset (the paper's D4RL sets have 10⁶: pass 1000000); built if missing."""
     checkpoint: str = "auto"
@@ -177,13 +177,13 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
 def resolve_dataset(args: SweepArgs) -> str | None:
-    """'none' -> None; 'auto' -> ENV-medium when registered; else the given name or path."""
-    from proto_brax.data.generate import dataset_names
+    """'none' -> None; 'auto' -> ENV-medium (AntMaze: ENV-diverse) when registered; else the given name or path."""
+    from proto_brax.data.generate import ANTMAZE_ENVS, dataset_names
 
     if args.dataset in (None, "none"):
         return None
     if args.dataset == "auto":
-        name = f"{args.env}-medium"
+        name = f"{args.env}-{'diverse' if args.env in ANTMAZE_ENVS else 'medium'}"
         return name if name in dataset_names() else None
     return args.dataset
 

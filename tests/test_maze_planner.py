@@ -85,3 +85,45 @@ def test_ant_goal_reward_termination_and_goal_redraw(antgoal):
     # upside down (torso at a healthy height) ends the episode
     flipped = s.pipeline_state.replace(qpos=q.at[3:7].set(jnp.array([0.0, 1.0, 0.0, 0.0])).at[2].set(0.4))
     assert float(step(s.replace(pipeline_state=flipped), jnp.zeros(8)).done) == 1.0
+
+
+def test_antmaze_collection_labels_like_d4rl():
+    """Collection mechanics with an untrained controller (a small random actor): D4RL's sparse rewards against the
+    evaluation goal with terminals equal to them, episodes contiguous and cut by timeouts, starts in task cells,
+    deterministic in the key."""
+    from proto_brax.antmaze import AntMaze, cell_to_xy
+    from proto_brax.data import antmaze_data as ad
+    from proto_brax.data.generate import flatten_env_major, stochastic_policy
+    from proto_brax.networks import NetworkConfig, make_networks
+
+    env = AntMaze("umaze", terminate_on_success=False)
+    cells = ad.task_cells("umaze", "play")
+    assert cells == [(1, 1), (3, 1)] and len(ad.task_cells("large", "diverse")) == 46
+    centres = jnp.asarray(np.stack([cell_to_xy(c, env.layout) for c in cells]), jnp.float32)
+    goal = centres[0]  # the evaluation goal at a start cell's centre, so that some episodes are rewarded at once
+    ad._PLANNERS.setdefault("umaze", mp.make_planner(env.layout))
+    nets = make_networks(NetworkConfig(hidden=(16, 16)), 8)
+    params = nets.actor.init(jax.random.PRNGKey(0), jnp.zeros((1, 27)))
+    policy = stochastic_policy(nets)
+
+    def run():
+        state = ad._init(env, centres, goal, 4, jax.random.PRNGKey(1))
+        tr, state = ad._segment(env, "umaze", centres, goal, policy, params, jax.random.PRNGKey(2), 40, 15, state)
+        return jax.device_get(flatten_env_major(tr))
+
+    d = run()
+    obs, nxt = np.asarray(d.observations), np.asarray(d.next_observations)
+    assert obs.shape == (160, 29) and np.all(np.abs(d.actions) <= 1)
+    want = (np.linalg.norm(nxt[:, :2] - np.asarray(goal), axis=1) <= 0.5).astype(np.float32)
+    np.testing.assert_array_equal(d.rewards, want)
+    np.testing.assert_array_equal(d.terminals, d.rewards)
+    assert 0 < d.rewards.sum() < 160
+    ends = np.flatnonzero(d.timeouts)
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    assert np.all(ends - starts + 1 <= 15) and ends[-1] == 159
+    for a, b in zip(starts, ends):  # contiguous within an episode; each starts within ±1 m of a task cell
+        np.testing.assert_allclose(obs[a + 1:b + 1], nxt[a:b], atol=1e-6)
+        assert np.min(np.abs(obs[a, :2] - np.asarray(centres)).max(axis=1)) <= ad.START_NOISE + 1e-5
+    jax.tree.map(np.testing.assert_array_equal, d, run())
+    stats = ad.collection_stats(d, 15)
+    assert stats["episodes"] == ends.size and 0 < stats["success_rate"] <= 1

@@ -80,15 +80,22 @@ def default_size(env: str) -> int:
     return DEFAULT_SIZE.get(env, 1_000_000)
 
 
+# AntMaze (proto_brax.data.antmaze_data): D4RL's play / diverse navigation data in each maze.
+ANTMAZE_ENVS = ("antmaze-umaze", "antmaze-medium", "antmaze-large")
+ANTMAZE_KINDS = ("play", "diverse")
+
+
 def dataset_names() -> list[str]:
-    return [f"{env}-{kind}" for env in DATASET_ENVS for kind in KINDS]
+    return ([f"{env}-{kind}" for env in DATASET_ENVS for kind in KINDS]
+            + [f"{env}-{kind}" for env in ANTMAZE_ENVS for kind in ANTMAZE_KINDS])
 
 
 def parse_name(name: str) -> tuple[str, str]:
-    for env in DATASET_ENVS:
-        for kind in KINDS:
-            if name == f"{env}-{kind}":
-                return env, kind
+    for envs_, kinds in ((DATASET_ENVS, KINDS), (ANTMAZE_ENVS, ANTMAZE_KINDS)):
+        for env in envs_:
+            for kind in kinds:
+                if name == f"{env}-{kind}":
+                    return env, kind
     raise ValueError(f"Unknown dataset {name!r}: valid names are {', '.join(dataset_names())}.")
 
 
