@@ -89,6 +89,9 @@ class SweepArgs:
     """Pretrain on --dataset first (one bundle seed per sweep seed, saved in OUT/pretrained), then finetune from it."""
     pretrain_steps: int = 100_000
     """Gradient steps of --pretrain."""
+    pretrain_hp: dict[str, float] = dataclasses.field(default_factory=dict)
+    """Offline hyper-parameters of --pretrain, e.g. --pretrain-hp alpha 0.5 (AntMaze's EQL temperature; see
+    proto_brax.algorithms.insample.OfflineHParams)."""
     hp: dict[str, float] = dataclasses.field(default_factory=dict)
     """Other traced hyper-parameters, e.g. --hp lr_actor 1e-4 gamma 0.995 (see proto_brax.config.HParams)."""
     reward_scale: float | None = None
@@ -472,6 +475,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
                                   steps=args.pretrain_steps, log_every=min(10_000, args.pretrain_steps),
                                   hidden=tuple(args.hidden), critic_layer_norm=cfg.net.critic_layer_norm,
                                   reward_scale=args.reward_scale, reward_shift=args.reward_shift,
+                                  hp=dict(args.pretrain_hp),
                                   out=bundle, overwrite=True))
         pretrained, per_run, bmeta = _load_checkpoint(bundle, cfg, grid, args.algo)
         cfg = dataclasses.replace(cfg, **reward_transform(args, bmeta, dataset))
@@ -604,6 +608,12 @@ PRESETS: dict[str, tuple[str, dict]] = {
     "paper-mujoco-100k": ("reduced-scale paper-mujoco: 10⁵ steps, α annealed over the same fraction (N = 10⁵)", dict(
         tau=(5e-3,), eta=(0.9,), alpha0=(2.0,), seeds=(0, 1, 2, 3, 4), steps=100_000, eval_every=5_000,
         eval_episodes=10, anneal_horizon=1e5, learning_starts=1_000)),
+    "paper-antmaze": ("PROTO paper, AntMaze (reference script): antmaze-medium(-diverse), τ 5e-5, η 0.9, α₀ 0.5, no "
+                      "value-regularization backup, no clipped double-Q, 10⁶ steps, 5 seeds, eval 100×50k, EQL 2·10⁵",
+                      dict(env="antmaze-medium", dataset="auto", dataset_size=1_000_000, tau=(5e-5,), eta=(0.9,),
+                           alpha0=(0.5,), seeds=(0, 1, 2, 3, 4), steps=1_000_000, eval_every=50_000,
+                           eval_episodes=100, anneal_horizon=1e6, learning_starts=1_000, value_reg_backup=False,
+                           clipped_double_q=False, pretrain_steps=200_000, pretrain_hp={"alpha": 0.5})),
 }
 
 

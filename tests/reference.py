@@ -63,7 +63,7 @@ def sac_critic_loss(actor, critic, critic_target, pibar, log_alpha_sac, batch, e
     logp = tanh_gaussian_logp(u, mean, log_std)
     q_next = critics(critic_target, s2, np.tanh(u))
     q_next = q_next.min(0) if clip else q_next.mean(0)
-    v = q_next - np.exp(log_alpha_sac) * logp
+    v = q_next - np.exp(log_alpha_sac) * logp if backup else q_next  # no backup: no entropy term either
     if backup:
         mb, lb = gaussian_actor(pibar, s2)
         v = v - alpha * (logp - tanh_gaussian_logp(u, mb, lb))

@@ -69,15 +69,16 @@ def test_sac_actor_loss_matches_numpy(clip):
 
 
 def test_sac_alpha_zero_is_plain_sac():
-    """α = 0: the PROTO terms vanish exactly, whatever π̄ is and whether the backup switch is on."""
+    """α = 0: the PROTO terms vanish exactly, whatever π̄ is, and equal SAC without the regularizer."""
     cfg, nets, hp, lrn, batch = _setup("sac", value_reg_backup=True)
-    cfg_plain = dataclasses.replace(cfg, value_reg_backup=False)
+    cfg_plain = dataclasses.replace(cfg, regularizer=False)
     key = jax.random.PRNGKey(9)
+    other_pibar = lrn.replace(pibar=perturb(lrn.pibar, jax.random.PRNGKey(5), 1.0))
     with_term = sac.critic_loss(lrn.critic, lrn, batch, key, 0.0, hp, nets, cfg)[0]
+    assert float(with_term) == float(sac.critic_loss(lrn.critic, other_pibar, batch, key, 0.0, hp, nets, cfg)[0])
     plain = sac.critic_loss(lrn.critic, lrn, batch, key, 0.0, hp, nets, cfg_plain)[0]
     assert float(with_term) == float(plain)
     a_loss = sac.actor_loss(lrn.actor, lrn.critic, lrn, batch.observations, key, 0.0, nets, cfg)[0]
-    other_pibar = lrn.replace(pibar=perturb(lrn.pibar, jax.random.PRNGKey(5), 1.0))
     a_loss2 = sac.actor_loss(lrn.actor, lrn.critic, other_pibar, batch.observations, key, 0.0, nets, cfg)[0]
     assert float(a_loss) == float(a_loss2)
 

@@ -99,6 +99,11 @@ def test_presets_set_defaults_that_flags_override():
     assert args.tau == (5e-3,) and args.eta == (0.9,) and args.alpha0 == (2.0,) and args.steps == 1_000_000
     assert args.anneal_horizon == 1e6 and args.env == "walker2d" and args.seeds == (0,)
     assert sweep.parse_args(["--steps", "2000", "--preset", "smoke"]).steps == 2000
+    am = sweep.parse_args(["--preset", "paper-antmaze", "--steps", "4000"])
+    assert (am.env, am.tau, am.alpha0, am.value_reg_backup, am.clipped_double_q) == (
+        "antmaze-medium", (5e-5,), (0.5,), False, False)
+    assert am.steps == 4000 and am.pretrain_steps == 200_000 and am.pretrain_hp == {"alpha": 0.5}
+    assert sweep.resolve_dataset(am) == "antmaze-medium-diverse"
     with pytest.raises(SystemExit, match="--preset needs one of"):
         sweep.parse_args(["--preset", "paper-mujocoo"])
 

@@ -29,13 +29,14 @@ def critic_loss(
     """Critic loss with the PROTO backup (Eq. 3).
 
     y = r + γ (1 − d) [Q̄(s′, a′) − α_sac log π(a′|s′) − α (log π(a′|s′) − log π̄(a′|s′))],  a′ ~ π(·|s′),
-    where Q̄ is min (or mean) over the target ensemble and the α-term is present only with ``value_reg_backup``.
-    Loss = mean over ensemble members and batch of (Q_i(s, a) − y)².
+    where Q̄ is min (or mean) over the target ensemble. Without ``value_reg_backup`` (the paper's AntMaze and Adroit
+    setting) the bracket is Q̄(s′, a′) alone: the reference code's ``entropy_backup=False`` drops SAC's entropy term
+    together with the PROTO term. Loss = mean over ensemble members and batch of (Q_i(s, a) − y)².
     """
     mean, log_std = nets.actor.apply(learner.actor, batch.next_observations)
     a_next, u_next, logp_next = sample_tanh_gaussian(key, mean, log_std)
     q_next = reduce_q(nets.critic.apply(learner.critic_target, batch.next_observations, a_next), cfg.clipped_double_q)
-    v_next = q_next - jnp.exp(learner.log_alpha_sac) * logp_next
+    v_next = q_next - jnp.exp(learner.log_alpha_sac) * logp_next if cfg.value_reg_backup else q_next
     if cfg.regularizer and cfg.value_reg_backup:
         mean_bar, log_std_bar = nets.actor.apply(learner.pibar, batch.next_observations)
         v_next = v_next - alpha * kl_penalty(u_next, mean, log_std, mean_bar, log_std_bar)
