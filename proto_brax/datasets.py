@@ -335,7 +335,8 @@ def cmd_info(a: Info) -> dict:
     print(f"{a.name}: {meta['size']} transitions from {meta['kind']} behaviour on {meta['env']} ({meta['backend']})")
     print(f"  episodes {r['num_episodes']}, return mean {r['mean']:.1f} min {r['min']:.1f} max {r['max']:.1f}, "
           f"normalized score of the mean {float(score):.1f}")
-    for k in ("seed", "num_envs", "expert_snapshot", "medium_snapshot", "behavior", "content_hash", "version"):
+    for k in ("seed", "num_envs", "expert_snapshot", "medium_snapshot", "behavior", "controller", "cells", "stats",
+              "content_hash", "version"):
         if k in meta:
             print(f"  {k}: {meta[k]}")
     return meta
