@@ -63,7 +63,15 @@ def cached_metadata(path: Path) -> dict:
 def stale_reason(meta: dict, behavior_root: Path | None = None) -> str | None:
     """Why a cached dataset no longer matches what ``make`` would generate now (a snapshot its kind is made from —
     medium for medium and medium-replay, expert for expert, both for medium-expert — is not the one the current rule
-    picks: new snapshots, or a changed rule), or None when it is current."""
+    picks: new snapshots, or a changed rule; AntMaze: its controller is not the last ant-goal snapshot), or None when
+    it is current."""
+    if "controller" in meta:  # AntMaze: made with the ant-goal controller's last snapshot of the time
+        from proto_brax.data import generate as g
+
+        last = g.list_snapshots(meta["controller"]["env"], behavior_root)[-1].step
+        had = meta["controller"]["step"]
+        return None if had == last else (f"it was generated with the {meta['controller']['env']} controller at step "
+                                         f"{had}, the last snapshot is step {last}")
     uses = {"medium": ("medium",), "medium-replay": ("medium",), "expert": ("expert",),
             "medium-expert": ("medium", "expert")}.get(meta.get("kind"), ())
     if not uses or "expert_snapshot" not in meta:

@@ -185,3 +185,11 @@ def test_checkpoint_index_names_expert_and_medium_of_each_env():
         _, med = g.pick_expert_medium(snaps, datasets.reference_returns(envs.get_spec(env)))
         assert f"| {env} | {len(snaps)} | {snaps[-1].step} | " in text and f" | {med.step} | " in text
     assert "| point | 6 | 3000 | 48.0 / not measured | 500 |" in text
+
+
+def test_antmaze_data_go_stale_when_the_controller_moves_on():
+    last = g.list_snapshots("point")[-1].step  # any env's snapshots stand in for ant-goal's
+    meta = {"kind": "diverse", "controller": {"env": "point", "step": last}}
+    assert datasets.stale_reason(meta) is None
+    why = datasets.stale_reason({**meta, "controller": {"env": "point", "step": last - 500}})
+    assert f"controller at step {last - 500}, the last snapshot is step {last}" in why
