@@ -337,13 +337,24 @@ def cmd_make(a: Make) -> Path:
 def cmd_info(a: Info) -> dict:
     from proto_brax import envs
 
-    data, meta = load_dataset(a.name, a.size, a.seed, a.cache_dir)
+    from proto_brax.data.generate import dataset_names
+
+    path = dataset_path(a.name, a.size, a.seed, a.cache_dir) if a.name in dataset_names() else None
+    if path is not None and path.exists() and (why := stale_reason(meta := cached_metadata(path))):
+        print(f"{a.name}: STALE ({why}): {rebuild_command(a.name, a.size, a.seed)}")  # still show what it holds
+    else:
+        _, meta = load_dataset(a.name, a.size, a.seed, a.cache_dir)  # verifies the file; names the fix if absent
     r = meta["returns"]
     score = envs.normalized_score(meta["env"], r["mean"])
     print(f"{a.name}: {meta['size']} transitions from {meta['kind']} behaviour on {meta['env']} ({meta['backend']})")
-    print(f"  episodes {r['num_episodes']}, return mean {r['mean']:.1f} min {r['min']:.1f} max {r['max']:.1f}, "
-          f"normalized score of the mean {float(score):.1f}")
-    for k in ("seed", "num_envs", "expert_snapshot", "medium_snapshot", "behavior", "controller", "cells", "stats",
+    if "stats" in meta:  # AntMaze: terminals mark the goal inside runs, so "episode returns" mean nothing there
+        st = meta["stats"]
+        print(f"  runs {st['episodes']}, reaching the evaluation goal {100 * st['success_rate']:.1f}%, cut short "
+              f"(upside down) {100 * st['cut_short']:.1f}%, rewarded transitions {100 * st['reward_rate']:.2f}%")
+    else:
+        print(f"  episodes {r['num_episodes']}, return mean {r['mean']:.1f} min {r['min']:.1f} max {r['max']:.1f}, "
+              f"normalized score of the mean {float(score):.1f}")
+    for k in ("seed", "num_envs", "expert_snapshot", "medium_snapshot", "behavior", "controller", "cells",
               "content_hash", "version"):
         if k in meta:
             print(f"  {k}: {meta[k]}")
@@ -393,6 +404,10 @@ def main(argv: list[str] | None = None) -> None:
     cmd = tyro.extras.subcommand_cli_from_dict(
         {"make": Make, "info": Info, "list": List, "references": References, "measure": Measure}, args=argv
     )
+    if isinstance(cmd, Make) and cmd.name.startswith("antmaze-"):  # before JAX starts: MJX's CPU scheduler fix
+        from proto_brax import envs
+
+        os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
     {Make: cmd_make, Info: cmd_info, List: cmd_list, References: cmd_references, Measure: cmd_measure}[type(cmd)](cmd)
 
 
