@@ -133,7 +133,7 @@ _PLANNERS: dict[str, object] = {}  # planners are numpy tables: jit sees them th
 
 
 def make_antmaze_dataset(maze: str, kind: str, size: int, seed: int, num_envs: int, controller=None,
-                         progress: bool = True, episode_length: int = EPISODE_LENGTH, segment: int = 500):
+                         progress: bool = True, episode_length: int = EPISODE_LENGTH):
     """(numpy ``OfflineDataset``, metadata) of ``antmaze-MAZE-KIND``; deterministic in (maze, kind, size, seed,
     controller). ``controller`` = (snapshot metadata dict, nets, params); default: the last ``ant-goal`` snapshot."""
     from tqdm import tqdm
@@ -143,8 +143,10 @@ def make_antmaze_dataset(maze: str, kind: str, size: int, seed: int, num_envs: i
     from proto_brax.data.dataset import episode_return_stats
     from proto_brax.data.generate import flatten_env_major
 
-    if size % num_envs or (size // num_envs) % segment:
-        raise ValueError(f"size ({size}) must be num_envs ({num_envs}) × a multiple of {segment} steps.")
+    if size % num_envs:
+        raise ValueError(f"size ({size}) must be a multiple of num_envs ({num_envs}).")
+    # steps per compiled segment (a progress-bar tick): the largest of these that divides the steps per env
+    segment = next(d for d in (500, 250, 200, 100, 50, 25, 20, 10, 5, 2, 1) if (size // num_envs) % d == 0)
     env = AntMaze(maze, terminate_on_success=False)
     layout = env.layout
     if controller is None:
