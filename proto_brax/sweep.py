@@ -172,7 +172,10 @@ def _load_dataset(name_or_path: str | None, size: int | None = None):
             state = f"is stale ({stale})" if stale else "is not cached"
             print(f"dataset {name_or_path} {state}: building it (= {datasets.rebuild_command(name_or_path, size, 0)})",
                   flush=True)
-            datasets.cmd_make(datasets.Make(name=name_or_path, size=size, force=True))
+            from proto_brax.data.dataset import load_npz
+
+            # what was just built (re-checking it could call it stale again while its behaviour policy trains on)
+            return load_npz(datasets.cmd_make(datasets.Make(name=name_or_path, size=size, force=True)))
     return datasets.load_dataset(name_or_path, size)  # a file, or an error naming the problem
 
 
