@@ -248,7 +248,7 @@ def test_proto_from_bc_pretrained_policy_starts_high_and_stays_high():
     pre = Pretrained(actor=actor)
     hp = HParams.create(**{**SCRATCH, "alpha0": 1.0, "alpha_sac_init": 0.01, "target_entropy_scale": -0.5})
     learner0 = ft.init(hp, jax.random.PRNGKey(0), pre, data).learner
-    pi0_return = float(jnp.mean(jax.jit(ft.evaluate)(learner0, jax.random.PRNGKey(9))))
+    pi0_return = float(jnp.mean(jax.jit(ft.evaluate)(learner0, jax.random.PRNGKey(9))[0]))
     assert envs.normalized_score("point", pi0_return) >= 80.0
     _, m = single(hp, jax.random.PRNGKey(0), pre, data)
     score = np.asarray(envs.normalized_score("point", m["eval_return"]))
