@@ -91,24 +91,24 @@ def test_antmaze_collection_labels_like_d4rl():
     """Collection mechanics with an untrained controller (a small random actor): D4RL's sparse rewards against the
     evaluation goal with terminals equal to them, episodes contiguous and cut by timeouts, starts in task cells,
     deterministic in the key."""
-    from proto_brax.antmaze import AntMaze, cell_to_xy
+    from proto_brax.antmaze import cell_to_xy
     from proto_brax.data import antmaze_data as ad
     from proto_brax.data.generate import flatten_env_major, stochastic_policy
     from proto_brax.networks import NetworkConfig, make_networks
 
-    env = AntMaze("umaze", terminate_on_success=False)
+    env, planner = ad.data_env("umaze")
+    assert not env._terminate_on_success and ad.data_env("umaze")[1] is planner  # cached: segments compile once
     cells = ad.task_cells("umaze", "play")
     assert cells == [(1, 1), (3, 1)] and len(ad.task_cells("large", "diverse")) == 46
     centres = jnp.asarray(np.stack([cell_to_xy(c, env.layout) for c in cells]), jnp.float32)
     goal = centres[0]  # the evaluation goal at a start cell's centre, so that some episodes are rewarded at once
-    ad._PLANNERS.setdefault("umaze", mp.make_planner(env.layout))
     nets = make_networks(NetworkConfig(hidden=(16, 16)), 8)
     params = nets.actor.init(jax.random.PRNGKey(0), jnp.zeros((1, 27)))
     policy = stochastic_policy(nets)
 
     def run():
         state = ad._init(env, centres, goal, 4, jax.random.PRNGKey(1))
-        tr, state = ad._segment(env, "umaze", centres, goal, policy, params, jax.random.PRNGKey(2), 40, 15, state)
+        tr, state = ad._segment(env, planner, centres, goal, policy, params, jax.random.PRNGKey(2), 40, 15, state)
         return jax.device_get(flatten_env_major(tr))
 
     d = run()

@@ -124,12 +124,16 @@ def _init(env, cells_xy, eval_goal, num_envs, key):
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1, 4, 7, 8))
-def _segment(env, planner_key, cells_xy, eval_goal, policy, params, key, steps, episode_length, state):
-    return collect_maze(env, _PLANNERS[planner_key], cells_xy, eval_goal, policy, params, key, steps, episode_length,
-                        state)
+def _segment(env, planner, cells_xy, eval_goal, policy, params, key, steps, episode_length, state):
+    return collect_maze(env, planner, cells_xy, eval_goal, policy, params, key, steps, episode_length, state)
 
 
-_PLANNERS: dict[str, object] = {}  # planners are numpy tables: jit sees them through a hashable name
+@functools.lru_cache(maxsize=None)
+def data_env(maze: str) -> tuple[AntMaze, object]:
+    """The collection env (no termination at the goal) and the maze's planner, one of each per maze, so that the
+    compiled segments (static in both) are reused."""
+    env = AntMaze(maze, terminate_on_success=False)
+    return env, make_planner(env.layout)
 
 
 def make_antmaze_dataset(maze: str, kind: str, size: int, seed: int, num_envs: int, controller=None,
@@ -147,7 +151,7 @@ def make_antmaze_dataset(maze: str, kind: str, size: int, seed: int, num_envs: i
         raise ValueError(f"size ({size}) must be a multiple of num_envs ({num_envs}).")
     # steps per compiled segment (a progress-bar tick): the largest of these that divides the steps per env
     segment = next(d for d in (500, 250, 200, 100, 50, 25, 20, 10, 5, 2, 1) if (size // num_envs) % d == 0)
-    env = AntMaze(maze, terminate_on_success=False)
+    env, planner = data_env(maze)
     layout = env.layout
     if controller is None:
         snap = g.list_snapshots(CONTROLLER_ENV)[-1]
@@ -157,13 +161,12 @@ def make_antmaze_dataset(maze: str, kind: str, size: int, seed: int, num_envs: i
     cells = task_cells(maze, kind)
     cells_xy = jnp.asarray(np.stack([cell_to_xy(c, layout) for c in cells]), jnp.float32)
     eval_goal = jnp.asarray(cell_to_xy(MAZES[maze].goal_cell, layout), jnp.float32)
-    _PLANNERS.setdefault(maze, make_planner(layout))
     policy = g.stochastic_policy(nets)
     key = jax.random.fold_in(jax.random.PRNGKey(seed), KINDS.index(kind))
     state, parts = _init(env, cells_xy, eval_goal, num_envs, jax.random.fold_in(key, 0)), []
     bar = tqdm(total=size, unit="tr", desc=f"antmaze-{maze}-{kind}", disable=not progress, dynamic_ncols=True)
     for i in range(size // num_envs // segment):
-        tr, state = _segment(env, maze, cells_xy, eval_goal, policy, params, jax.random.fold_in(key, i + 1),
+        tr, state = _segment(env, planner, cells_xy, eval_goal, policy, params, jax.random.fold_in(key, i + 1),
                              segment, episode_length, state)
         parts.append(jax.device_get(tr))
         bar.update(segment * num_envs)

@@ -20,9 +20,10 @@ import numpy as np
 from proto_brax.antmaze import MAZE_SIZE_SCALING, cell_to_xy
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class Planner:
-    """Lookup tables of a maze (host numpy, closed over as constants by the jitted controller)."""
+    """Lookup tables of a maze (host numpy, closed over as constants by the jitted controller). Hashed by identity,
+    so it can be a static argument of ``jit``."""
 
     rows: int
     cols: int
