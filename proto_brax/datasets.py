@@ -336,7 +336,6 @@ def cmd_make(a: Make) -> Path:
 
 def cmd_info(a: Info) -> dict:
     from proto_brax import envs
-
     from proto_brax.data.generate import dataset_names
 
     path = dataset_path(a.name, a.size, a.seed, a.cache_dir) if a.name in dataset_names() else None
@@ -345,7 +344,6 @@ def cmd_info(a: Info) -> dict:
     else:
         _, meta = load_dataset(a.name, a.size, a.seed, a.cache_dir)  # verifies the file; names the fix if absent
     r = meta["returns"]
-    score = envs.normalized_score(meta["env"], r["mean"])
     print(f"{a.name}: {meta['size']} transitions from {meta['kind']} behaviour on {meta['env']} ({meta['backend']})")
     if "stats" in meta:  # AntMaze: terminals mark the goal inside runs, so "episode returns" mean nothing there
         st = meta["stats"]
@@ -353,7 +351,7 @@ def cmd_info(a: Info) -> dict:
               f"(upside down) {100 * st['cut_short']:.1f}%, rewarded transitions {100 * st['reward_rate']:.2f}%")
     else:
         print(f"  episodes {r['num_episodes']}, return mean {r['mean']:.1f} min {r['min']:.1f} max {r['max']:.1f}, "
-              f"normalized score of the mean {float(score):.1f}")
+              f"normalized score of the mean {float(envs.normalized_score(meta['env'], r['mean'])):.1f}")
     for k in ("seed", "num_envs", "expert_snapshot", "medium_snapshot", "behavior", "controller", "cells",
               "content_hash", "version"):
         if k in meta:

@@ -174,18 +174,17 @@ def mjx_xla_flags(flags: str | None = None) -> str:
     return flags if flag in flags else f"{flags} {flag}".strip()
 
 
-def reward_transform(name: str, dataset=None) -> tuple[float, float]:
-    """(scale, shift) of the training-time rewards r' = scale · r + shift for env ``name`` (see ``EnvSpec``).
-
-    "return-range" envs take their scale from ``dataset`` (1 without offline data: online-only runs train on raw
-    rewards).
-    """
+def reward_transform(name: str, dataset=None, scale: float | None = None, shift: float | None = None
+                     ) -> tuple[float, float]:
+    """(scale, shift) of the training-time rewards r' = scale · r + shift for env ``name`` (see ``EnvSpec``): the
+    given values, else the env's rule. "return-range" envs take their scale from ``dataset`` (1 without offline
+    data: online-only runs train on raw rewards)."""
     from proto_brax.data.dataset import return_range_scale
 
     spec = get_spec(name)
-    if spec.reward_scale_rule == "none" or dataset is None:
-        return 1.0, spec.reward_shift
-    return return_range_scale(dataset), spec.reward_shift
+    if scale is None:
+        scale = 1.0 if spec.reward_scale_rule == "none" or dataset is None else return_range_scale(dataset)
+    return float(scale), float(spec.reward_shift if shift is None else shift)
 
 
 def normalized_score(name: str, returns):

@@ -74,8 +74,7 @@ def pretrain(args: PretrainArgs) -> dict:
     if env is None:
         raise ValueError(f"Dataset {args.dataset} does not name its env: pass --env.")
     data_hash = (dmeta or {}).get("content_hash") or content_hash(data)  # of the data as stored (raw rewards)
-    scale = float(args.reward_scale if args.reward_scale is not None else envs.reward_transform(env, data)[0])
-    shift = float(args.reward_shift if args.reward_shift is not None else envs.get_spec(env).reward_shift)
+    scale, shift = envs.reward_transform(env, data, args.reward_scale, args.reward_shift)
     data = transform_rewards(data, scale, shift)
     if args.algo == "calql":
         data = with_returns_to_go(data, float(hp.gamma))

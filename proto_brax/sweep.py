@@ -243,9 +243,8 @@ def reward_transform(args: SweepArgs, bundle_meta: dict | None, dataset) -> dict
                 raise ValueError(f"--{k.replace('_', '-')} {v}: the bundle was pretrained with {k} {b[k]:.6g} (its "
                                  f"critic is in those units): drop the flag, or pretrain a bundle with it.")
         return b
-    scale = envs.reward_transform(args.env, dataset)[0] if args.reward_scale is None else args.reward_scale
-    shift = envs.get_spec(args.env).reward_shift if args.reward_shift is None else args.reward_shift
-    return {"reward_scale": float(scale), "reward_shift": float(shift)}
+    scale, shift = envs.reward_transform(args.env, dataset, args.reward_scale, args.reward_shift)
+    return {"reward_scale": scale, "reward_shift": shift}
 
 
 def _load_checkpoint(path: Path | None, cfg, grid, method_name: str = "proto-sac"):
