@@ -36,28 +36,17 @@ def _navigate_fn():
     @functools.partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
     def navigate(env, planner, horizon, nets, episodes, params, key, noise):
         """(returns, lengths) of ``episodes`` runs of the controller steered by the planner (``noise`` 0: the mean
-        action; 1: sampled actions)."""
+        action; 1: sampled actions). ``env`` appends the goal to its observation (``goal_in_obs``)."""
         import jax.numpy as jnp
 
-        from proto_brax.antmaze import heading_to, rotate_ant_obs
-        from proto_brax.data import maze_planner as mp
+        from proto_brax.data.maze_planner import controller_obs
+        from proto_brax.train.evaluate import run_episodes_with_lengths
 
-        k_reset, k_run = jax.random.split(key)
-        s = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+        def policy(obs, k):
+            mean, log_std = nets.actor.apply(params, controller_obs(planner, obs, obs[:, 29:31]))
+            return jnp.tanh(mean + noise * jnp.exp(log_std) * jax.random.normal(k, mean.shape))
 
-        def body(carry, k):
-            s, ret, alive, length = carry
-            xy = s.obs[:, :2]
-            theta = heading_to(xy, mp.waypoint(planner, xy, s.info["goal"]))
-            mean, log_std = nets.actor.apply(params, rotate_ant_obs(s.obs[:, 2:], theta))
-            a = jnp.tanh(mean + noise * jnp.exp(log_std) * jax.random.normal(k, mean.shape))
-            s = jax.vmap(env.step)(s, a)
-            ret = ret + jnp.where(alive, s.reward, 0.0)
-            return (s, ret, alive & (s.done == 0), length + alive.astype(jnp.int32)), None
-
-        init = (s, jnp.zeros(episodes), jnp.ones(episodes, bool), jnp.zeros(episodes, jnp.int32))
-        (_, ret, _, length), _ = jax.lax.scan(body, init, jax.random.split(k_run, horizon))
-        return ret, length
+        return run_episodes_with_lengths(env, horizon, policy, key, episodes)
 
     return navigate
 
@@ -69,6 +58,7 @@ def main(args: Args) -> dict:
     import jax
     import numpy as np
 
+    from proto_brax.antmaze import AntMaze
     from proto_brax.checkpoints import write_json_atomic
     from proto_brax.data import maze_planner as mp
     from proto_brax.data.generate import list_snapshots, load_snapshot_actor
@@ -79,7 +69,7 @@ def main(args: Args) -> dict:
     results = {"controller_step": snap.step, "controller_eval_return": snap.eval_return, "episodes": args.episodes,
                "command": "python benchmarks/antmaze_controller.py " + " ".join(sys.argv[1:]), "mazes": {}}
     for maze in args.mazes:
-        env = envs.make_env(f"antmaze-{maze}")  # the evaluation task: it ends at the goal
+        env = AntMaze(maze, goal_in_obs=True)  # the evaluation task (it ends at the goal); the planner needs the goal
         horizon = envs.get_spec(f"antmaze-{maze}").episode_length
         planner = mp.make_planner(env.layout)
 

@@ -303,22 +303,25 @@ class AntMaze(PipelineEnv):
 
     def reset_at(self, rng: jax.Array, xy: jax.Array, goal: jax.Array) -> State:
         """A fresh episode with the torso at ``xy`` and the goal at ``goal`` (dataset collection picks its own)."""
-        k_q, k_qd = jax.random.split(rng)
-        # gymnasium Ant's reset noise on the joints (the torso xy noise comes with the cell).
-        c = self._reset_noise_scale
-        q_rest = self.sys.init_q[2:] + jax.random.uniform(k_q, (self.sys.q_size() - 2,), minval=-c, maxval=c)
-        qvel = c * jax.random.normal(k_qd, (self.sys.qd_size(),))
-        pipeline_state = self.pipeline_init(jnp.concatenate([xy, q_rest]), qvel)
+        pipeline_state = self._ant_at(rng, xy)
         reward, dist = sparse_reward(pipeline_state.q[:2], goal)
         zero = jnp.zeros(())
         metrics = {"success": reward, "goal_distance": dist}
         return State(pipeline_state, self._obs(pipeline_state, goal), reward, zero, metrics, {"goal": goal})
 
+    def _ant_at(self, rng: jax.Array, xy: jax.Array):
+        """Physics state with the torso at ``xy`` and gymnasium Ant's reset noise on the rest of qpos and on qvel."""
+        k_q, k_qd = jax.random.split(rng)
+        c = self._reset_noise_scale
+        q_rest = self.sys.init_q[2:] + jax.random.uniform(k_q, (self.sys.q_size() - 2,), minval=-c, maxval=c)
+        qvel = c * jax.random.normal(k_qd, (self.sys.qd_size(),))
+        return self.pipeline_init(jnp.concatenate([xy, q_rest]), qvel)
+
     def step(self, state: State, action: jax.Array) -> State:
         pipeline_state = self.pipeline_step(state.pipeline_state, action)
         goal = state.info["goal"]
         reward, dist = sparse_reward(pipeline_state.q[:2], goal)
-        finite = jnp.all(jnp.isfinite(pipeline_state.q)) & jnp.all(jnp.isfinite(pipeline_state.qd))
+        finite = is_finite(pipeline_state)
         done = 1.0 - finite.astype(jnp.float32)
         if self._terminate_on_success:
             done = jnp.maximum(done, reward)
@@ -348,6 +351,15 @@ def ant_yaw(quat: jax.Array) -> jax.Array:
     """Yaw (rotation about world z) of a (w, x, y, z) quaternion."""
     w, x, y, z = quat[..., 0], quat[..., 1], quat[..., 2], quat[..., 3]
     return jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def upside_down(q: jax.Array) -> jax.Array:
+    """The torso's z axis points down (its world z component, 1 − 2(qx² + qy²) of the qpos quaternion, is < 0)."""
+    return 1.0 - 2.0 * (q[..., 4] ** 2 + q[..., 5] ** 2) < 0.0
+
+
+def is_finite(pipeline_state) -> jax.Array:
+    return jnp.all(jnp.isfinite(pipeline_state.q)) & jnp.all(jnp.isfinite(pipeline_state.qd))
 
 
 def heading_to(xy: jax.Array, target: jax.Array) -> jax.Array:
@@ -400,11 +412,8 @@ class AntGoal(AntMaze):
         return xy + d * jnp.stack([jnp.cos(a), jnp.sin(a)])
 
     def reset(self, rng: jax.Array) -> State:
-        k_goal, k_q, k_qd, k_next = jax.random.split(rng, 4)
-        c = self._reset_noise_scale
-        q = self.sys.init_q + jax.random.uniform(k_q, (self.sys.q_size(),), minval=-c, maxval=c)
-        q = q.at[:2].set(0.0)
-        pipeline_state = self.pipeline_init(q, c * jax.random.normal(k_qd, (self.sys.qd_size(),)))
+        k_goal, k_ant, k_next = jax.random.split(rng, 3)
+        pipeline_state = self._ant_at(k_ant, jnp.zeros(2))
         goal = self._new_goal(k_goal, pipeline_state.q[:2])
         zero = jnp.zeros(())
         metrics = {"goals_reached": zero, "goal_distance": jnp.linalg.norm(goal - pipeline_state.q[:2]),
@@ -418,10 +427,8 @@ class AntGoal(AntMaze):
         u = (goal - xy0) / jnp.maximum(jnp.linalg.norm(goal - xy0), 1e-6)
         progress = jnp.dot(xy - xy0, u) / self.dt
         z = pipeline_state.q[2]
-        quat = pipeline_state.q[3:7]
-        upright = 1.0 - 2.0 * (quat[1] ** 2 + quat[2] ** 2)  # world z of the torso's z axis
-        finite = jnp.all(jnp.isfinite(pipeline_state.q)) & jnp.all(jnp.isfinite(pipeline_state.qd))
-        healthy = (z >= 0.2) & (z <= 1.0) & (upright > 0.0) & finite
+        finite = is_finite(pipeline_state)
+        healthy = (z >= 0.2) & (z <= 1.0) & ~upside_down(pipeline_state.q) & finite
         reward = progress + 1.0 - 0.5 * jnp.sum(jnp.square(action))
         key, k_goal = jax.random.split(state.info["key"])
         reached = jnp.linalg.norm(xy - goal) <= GOAL_RADIUS

@@ -33,13 +33,12 @@ from proto_brax.antmaze import (
     MAZES,
     AntMaze,
     cell_to_xy,
-    heading_to,
     maze_map,
-    rotate_ant_obs,
     sparse_reward,
+    upside_down,
 )
 from proto_brax.data.dataset import Transition
-from proto_brax.data.maze_planner import make_planner, waypoint
+from proto_brax.data.maze_planner import controller_obs, make_planner
 
 KINDS = ("play", "diverse")
 EPISODE_LENGTH = 1000
@@ -95,14 +94,11 @@ def collect_maze(env: AntMaze, planner, cells_xy: jax.Array, eval_goal: jax.Arra
     def one(carry, k):
         s, goal, t = carry
         k_act, k_goal, k_reset = jax.random.split(k, 3)
-        xy = s.obs[:2]
-        theta = heading_to(xy, waypoint(planner, xy, goal))
-        action = policy(params, rotate_ant_obs(s.obs[2:], theta), k_act)
+        action = policy(params, controller_obs(planner, s.obs, goal), k_act)
         nxt = env.step(s, action)
         q = nxt.pipeline_state.q
         reward, _ = sparse_reward(q[:2], eval_goal)
-        flipped = (1.0 - 2.0 * (q[4] ** 2 + q[5] ** 2)) < 0.0
-        end = (t + 1 >= episode_length) | flipped | (nxt.done > 0)
+        end = (t + 1 >= episode_length) | upside_down(q) | (nxt.done > 0)
         tr = Transition(observations=s.obs, actions=action, rewards=reward, next_observations=nxt.obs,
                         terminals=reward, timeouts=end.astype(jnp.float32))
         goal = jnp.where(jnp.linalg.norm(q[:2] - goal) <= GOAL_RADIUS, _draw(k_goal, cells_xy, GOAL_NOISE, q[:2]),

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from proto_brax.antmaze import MAZE_SIZE_SCALING, cell_to_xy
+from proto_brax.antmaze import MAZE_SIZE_SCALING, cell_to_xy, heading_to, rotate_ant_obs
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -79,3 +79,10 @@ def waypoint(planner: Planner, xy: jax.Array, goal: jax.Array) -> jax.Array:
     here, target = cell_of(planner, xy), cell_of(planner, goal)
     nxt = jnp.asarray(planner.next_cell)[here, target]
     return jnp.where((here == target)[..., None], goal, jnp.asarray(planner.centres)[nxt])
+
+
+def controller_obs(planner: Planner, obs: jax.Array, goal: jax.Array) -> jax.Array:
+    """The ant-goal controller's 27-dim observation for a maze observation ``[xy, ant state]`` (29): the ant seen
+    from the frame pointing at the next waypoint towards ``goal``."""
+    xy = obs[..., :2]
+    return rotate_ant_obs(obs[..., 2:29], heading_to(xy, waypoint(planner, xy, goal)))
