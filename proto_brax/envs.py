@@ -130,6 +130,24 @@ REGISTRY: dict[str, EnvSpec] = {
                               reward_scale_rule="none", reward_shift=-1.0, goal_task=True),
     "antmaze-large": EnvSpec("antmaze-large", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0,
                             reward_scale_rule="none", reward_shift=-1.0, goal_task=True),
+    # Adroit (proto_brax/adroit.py): gymnasium-robotics' AdroitHand{Pen,Door,Hammer}-v1 on MJX, with cylinders turned
+    # into capsules (MJX has no cylinder-box collider; benchmarks/results/adroit_check.json measures the effect).
+    # These are the D4RL tasks PROTO reports, so the registry builds them as D4RL's hand_dapg envs (d4rl_reward: the
+    # palm-distance term of door / hammer is subtracted, as in D4RL and gymnasium-robotics <= 1.2.0, where 1.4.2 adds
+    # it; D4RL's pen ends the episode when the pen drops) with D4RL's time limits (pen 100, door and hammer 200;
+    # gymnasium-robotics registers all three at 200). References: D4RL's (d4rl/hand_manipulation_suite/__init__.py
+    # PEN/DOOR/HAMMER_RANDOM_SCORE / _EXPERT_SCORE), measured on D4RL's own MuJoCo envs; the capsule geometry and MJX
+    # may shift them (not re-measured here). No reward rescaling: IQL's and PROTO's reference code normalize the
+    # rewards of D4RL locomotion only (return range) and AntMaze (r - 1); to our knowledge they feed Adroit rewards
+    # raw, though we could not re-read PROTO's code here to confirm it. goal_task stays False: Adroit episodes run to
+    # the time limit and their returns are dense; the success flag is in state.metrics["success"] (D4RL's
+    # goal_achieved), which the evaluation code does not aggregate yet.
+    "pen": EnvSpec("pen", "mjx", episode_length=100, ref_random=96.262799, ref_expert=3076.8331,
+                   reward_scale_rule="none", kwargs=(("d4rl_reward", True),)),
+    "door": EnvSpec("door", "mjx", episode_length=200, ref_random=-56.512833, ref_expert=2880.5693,
+                    reward_scale_rule="none", kwargs=(("d4rl_reward", True),)),
+    "hammer": EnvSpec("hammer", "mjx", episode_length=200, ref_random=-274.856578, ref_expert=12794.1340,
+                      reward_scale_rule="none", kwargs=(("d4rl_reward", True),)),
 }
 
 
@@ -159,6 +177,10 @@ def make_env(name: str, backend: str | None = None) -> Env:
         from proto_brax.antmaze import AntMaze  # imported lazily: brax's import is slow
 
         return AntMaze(maze=name.removeprefix("antmaze-"), backend=backend, **dict(spec.kwargs))
+    if name in ("pen", "door", "hammer"):
+        from proto_brax.adroit import Adroit  # imported lazily: brax's import is slow
+
+        return Adroit(name, backend=backend, **dict(spec.kwargs))
     from brax import envs as brax_envs  # imported lazily: brax's import is slow
 
     return brax_envs.get_environment(name, backend=backend, **dict(spec.kwargs))
