@@ -7,10 +7,11 @@
 Each (dataset, method) is one ``python -m proto_brax.sweep --preset paper-mujoco-100k --algo METHOD`` over the seeds,
 with the online budget ``--steps`` (α annealed over the same fraction of the run as the paper's 10⁶: the annealing
 horizon equals the budget) from the committed bundle of the method's kind (``--checkpoint auto``), on the full 10⁶-row
-dataset. Runs go to ``runs/locomotion/DATASET/METHOD`` with ``--resume``, so killing this script and running it again
-continues where it stopped; a finished sweep's ``summary.json``, ``config.json`` and gzipped ``metrics.jsonl`` are
-copied to ``benchmarks/results/locomotion/DATASET/METHOD/``. Methods whose bundle kind is not committed for a dataset
-are skipped with the command that makes the bundle.
+dataset. Runs go to ``$PROTO_BRAX_RUNS/locomotion/DATASET/METHOD`` (default ``~/.cache/proto_brax/runs``: outside
+the work tree, so a later checkout on the same machine resumes them) with ``--resume``, so killing this script and
+running it again continues where it stopped; a finished sweep's ``summary.json``, ``config.json`` and gzipped
+``metrics.jsonl`` are copied to ``benchmarks/results/locomotion/DATASET/METHOD/``. Methods whose bundle kind is not
+committed for a dataset are skipped with the command that makes the bundle.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import gzip
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -45,7 +47,9 @@ class Args:
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
     steps: int = 50_000  # online budget per run (paper: 10⁶); stated in every summary
     eval_every: int = 5_000
-    runs: Path = ROOT / "runs" / "locomotion"
+    runs: Path = Path(os.environ.get("PROTO_BRAX_RUNS", Path.home() / ".cache" / "proto_brax" / "runs")) / "locomotion"
+    """Working sweeps (resume state): outside the work tree, so that a later checkout on the same machine resumes them
+    ($PROTO_BRAX_RUNS, default ~/.cache/proto_brax/runs)."""
     results: Path = ROOT / "benchmarks" / "results" / "locomotion"
 
 
