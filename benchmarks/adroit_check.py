@@ -25,7 +25,6 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import os
-import platform
 import statistics
 import sys
 import time
@@ -229,15 +228,10 @@ def native_speed(gym_id: str, act_size: int, n: int, reps: int) -> dict:
 
 
 def main(args: Args) -> dict:
-    from proto_brax.envs import mjx_xla_flags
+    from proto_brax.envs import machine_info, single_thread_mjx_xla_flags
 
-    flags = os.environ.get("XLA_FLAGS", "")
-    for flag in ("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1"):
-        flags = flags if flag in flags else f"{flags} {flag}".strip()
-    os.environ["XLA_FLAGS"] = mjx_xla_flags(flags)
+    os.environ["XLA_FLAGS"] = single_thread_mjx_xla_flags()
 
-    import jax
-    import mujoco
 
     from proto_brax.checkpoints import write_json_atomic
 
@@ -245,9 +239,7 @@ def main(args: Args) -> dict:
         "command": " ".join(sys.argv),
         "date": datetime.datetime.now().isoformat(timespec="seconds"),
         "settings": dataclasses.asdict(args) | {"out": str(args.out)},
-        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "jax": jax.__version__,
-                    "mujoco": mujoco.__version__, "xla_flags": os.environ["XLA_FLAGS"],
-                    "loadavg_start": os.getloadavg()},
+        "machine": machine_info(),
         "tasks": {},
     }
     if args.merge and Path(args.out).exists():

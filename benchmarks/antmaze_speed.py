@@ -17,7 +17,6 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import os
-import platform
 import statistics
 import sys
 import time
@@ -106,16 +105,10 @@ def native_speed(maze: str, n: int, reps: int) -> dict:
 
 
 def main(args: Args) -> dict:
-    from proto_brax.envs import mjx_xla_flags
+    from proto_brax.envs import machine_info, single_thread_mjx_xla_flags
 
-    # One thread for XLA (like native MuJoCo's one thread) and the CPU scheduler fix batched MJX needs.
-    flags = os.environ.get("XLA_FLAGS", "")
-    for flag in ("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1"):
-        flags = flags if flag in flags else f"{flags} {flag}".strip()
-    os.environ["XLA_FLAGS"] = mjx_xla_flags(flags)
+    os.environ["XLA_FLAGS"] = single_thread_mjx_xla_flags()
 
-    import jax
-    import mujoco
 
     from proto_brax import antmaze
     from proto_brax.checkpoints import write_json_atomic
@@ -124,9 +117,7 @@ def main(args: Args) -> dict:
         "command": " ".join(sys.argv),
         "date": datetime.datetime.now().isoformat(timespec="seconds"),
         "maze": args.maze,
-        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "jax": jax.__version__,
-                    "mujoco": mujoco.__version__, "xla_flags": os.environ["XLA_FLAGS"],
-                    "loadavg_start": os.getloadavg()},
+        "machine": machine_info(),
         "mjx_settings": {"max_geom_pairs": antmaze.MAX_GEOM_PAIRS, "max_contact_points": antmaze.MAX_CONTACT_POINTS,
                          "solver_iterations": antmaze.SOLVER_ITERATIONS, "ls_iterations": antmaze.LS_ITERATIONS,
                          "integrator": "RK4 (unless named)", "upper_leg_contacts": False},

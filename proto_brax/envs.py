@@ -196,6 +196,27 @@ def mjx_xla_flags(flags: str | None = None) -> str:
     return flags if flag in flags else f"{flags} {flag}".strip()
 
 
+def single_thread_mjx_xla_flags(flags: str | None = None) -> str:
+    """``mjx_xla_flags`` plus one XLA thread: the setting of the MJX-vs-native MuJoCo speed checks, which compare
+    against native MuJoCo's one thread (so a shared machine's load hits both sides alike). Pure, as mjx_xla_flags."""
+    flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
+    for flag in ("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1"):
+        flags = flags if flag in flags else f"{flags} {flag}".strip()
+    return mjx_xla_flags(flags)
+
+
+def machine_info() -> dict:
+    """The header a benchmark records about where it ran (import after XLA_FLAGS is set: it initializes jax)."""
+    import platform
+
+    import jax
+    import mujoco
+
+    return {"python": platform.python_version(), "cpus": os.cpu_count(), "jax": jax.__version__,
+            "mujoco": mujoco.__version__, "xla_flags": os.environ.get("XLA_FLAGS", ""),
+            "loadavg_start": os.getloadavg()}
+
+
 def reward_transform(name: str, dataset=None, scale: float | None = None, shift: float | None = None
                      ) -> tuple[float, float]:
     """(scale, shift) of the training-time rewards r' = scale · r + shift for env ``name`` (see ``EnvSpec``): the
