@@ -207,8 +207,9 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
 
 
 def load_dataset(name_or_path: str | Path, size: int | None = None, seed: int = 0, cache: Path | None = None):
-    """A registered dataset from the cache (error naming the `make` command when absent), or a file path
-    (our .npz or a D4RL .hdf5)."""
+    """A registered dataset from the cache (error naming the `make` command when absent), a file path (our .npz or a
+    D4RL .hdf5), a local Minari dataset directory, or a Minari dataset id (``D4RL/pen/human-v2``: read from the
+    user's Minari cache, never downloaded)."""
     from proto_brax.data import dataset as ds
     from proto_brax.data.generate import dataset_names
 
@@ -222,10 +223,21 @@ def load_dataset(name_or_path: str | Path, size: int | None = None, seed: int = 
         if why := stale_reason(meta):
             raise ds.CorruptDatasetError(f"Cached dataset {path} is stale: {why}; rebuild it with `{hint} --force`.")
         return data, meta
+    if p.is_dir():
+        return ds.load_minari(p)
     if p.exists():
         return ds.load_d4rl_hdf5(p) if p.suffix in (".hdf5", ".h5") else ds.load_npz(p)
     if p.suffix:
         raise FileNotFoundError(f"Dataset file {name_or_path} does not exist.")
+    if "/" in str(name_or_path):  # a Minari id: NAMESPACE/TASK/KIND-vN
+        try:
+            return ds.load_minari(str(name_or_path))
+        except Exception as e:  # minari raises its own error types (FileNotFoundError, ValueError, …) across versions
+            root = os.environ.get("MINARI_DATASETS_PATH", str(Path.home() / ".minari" / "datasets"))
+            raise FileNotFoundError(
+                f"Minari dataset {name_or_path} is not available locally ({type(e).__name__}: {e}). Nothing is "
+                f"downloaded here: copy it to {root}/{name_or_path} (or set MINARI_DATASETS_PATH), or pass its "
+                "directory or a D4RL .hdf5 file as --dataset.") from e
     raise ValueError(f"Unknown dataset {name_or_path!r}: not a file, and not one of: {', '.join(dataset_names())}.")
 
 

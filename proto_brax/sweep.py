@@ -616,6 +616,15 @@ PRESETS: dict[str, tuple[str, dict]] = {
                            alpha0=(0.5,), seeds=(0, 1, 2, 3, 4), steps=1_000_000, eval_every=50_000,
                            eval_episodes=100, anneal_horizon=1e6, learning_starts=1_000, value_reg_backup=False,
                            clipped_double_q=False, pretrain_steps=200_000, pretrain_hp={"alpha": 0.5})),
+    # Adroit's offline data are D4RL's human demonstrations, which cannot be generated: the preset names D4RL's pen
+    # file through Minari (loaded from the user's Minari cache; --dataset PATH or another Minari id for door/hammer).
+    "paper-adroit": ("PROTO paper, Adroit: pen from D4RL's human data (Minari D4RL/pen/human-v2, user-supplied), "
+                     "τ 5e-5, η 0.9, α₀ 2, no value-regularization backup, clipped double-Q, 10⁶ steps, 5 seeds, "
+                     "eval 10×5k, EQL 10⁵",
+                     dict(env="pen", dataset="D4RL/pen/human-v2", tau=(5e-5,), eta=(0.9,), alpha0=(2.0,),
+                          seeds=(0, 1, 2, 3, 4), steps=1_000_000, eval_every=5_000, eval_episodes=10,
+                          anneal_horizon=1e6, learning_starts=1_000, value_reg_backup=False, clipped_double_q=True,
+                          pretrain_steps=100_000)),
 }
 
 

@@ -429,6 +429,22 @@ def test_minari_missing_dataset_raises(tmp_path, monkeypatch):
         load_minari("toy/absent-v0")
 
 
+@needs_minari
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_sweep_dataset_argument_reads_minari_ids_and_directories(tmp_path, monkeypatch):
+    """`--dataset D4RL/pen/human-v2` (the paper-adroit preset) goes through datasets.load_dataset: a Minari id or a
+    Minari directory loads; an id that is not cached names where to put it (nothing is downloaded)."""
+    from proto_brax import datasets
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    _record("toy/walk-v0")
+    by_id, _ = datasets.load_dataset("toy/walk-v0")
+    by_dir, _ = datasets.load_dataset(str(tmp_path / "toy" / "walk-v0"))
+    assert dataset_size(by_id) == 9 and content_hash(by_dir) == content_hash(by_id)
+    with pytest.raises(FileNotFoundError, match=f"copy it to {tmp_path}/D4RL/pen/human-v2"):
+        datasets.load_dataset("D4RL/pen/human-v2")
+
+
 # ------------------------------------------------------------------------------------------------------------------
 # validate_for_env, episode_returns
 # ------------------------------------------------------------------------------------------------------------------

@@ -1,5 +1,9 @@
 """AntMaze data pieces: the BFS waypoint planner, the heading rotation of the ant's observation, and ``AntGoal``
-(the goal-reaching task of the datasets' controller: reward, termination, goal redraw)."""
+(the goal-reaching task of the datasets' controller: reward, termination, goal redraw).
+
+The two MJX tests (ant-goal's reward and the AntMaze collection's D4RL labels) compile MJX ant programs for ~3 min
+on the CI's two cores, so they are marked slow; run them before changing AntMaze data code:
+``pytest -m slow tests/test_maze_planner.py``."""
 
 from __future__ import annotations
 
@@ -61,6 +65,7 @@ def antgoal():
     return env, jax.jit(env.reset), jax.jit(env.step)
 
 
+@pytest.mark.slow  # MJX compiles (~1-2 min each on 2 cores): kept out of CI, see the module docstring
 def test_ant_goal_reward_termination_and_goal_redraw(antgoal):
     env, reset, step = antgoal
     assert (env.observation_size, env.action_size) == (27, 8) and envs.get_spec("ant-goal").episode_length == 1000
@@ -87,6 +92,7 @@ def test_ant_goal_reward_termination_and_goal_redraw(antgoal):
     assert float(step(s.replace(pipeline_state=flipped), jnp.zeros(8)).done) == 1.0
 
 
+@pytest.mark.slow  # MJX compiles (~1-2 min each on 2 cores): kept out of CI, see the module docstring
 def test_antmaze_collection_labels_like_d4rl():
     """Collection mechanics with an untrained controller (a small random actor): D4RL's sparse rewards against the
     evaluation goal with terminals equal to them, episodes contiguous and cut by timeouts, starts in task cells,

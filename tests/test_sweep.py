@@ -104,6 +104,10 @@ def test_presets_set_defaults_that_flags_override():
         "antmaze-medium", (5e-5,), (0.5,), False, False)
     assert am.steps == 4000 and am.pretrain_steps == 200_000 and am.pretrain_hp == {"alpha": 0.5}
     assert sweep.resolve_dataset(am) == "antmaze-medium-diverse"
+    ad = sweep.parse_args(["--preset", "paper-adroit", "--env", "door", "--dataset", "D4RL/door/human-v2"])
+    assert (ad.env, ad.tau, ad.alpha0, ad.value_reg_backup, ad.clipped_double_q, ad.pretrain_steps) == (
+        "door", (5e-5,), (2.0,), False, True, 100_000)
+    assert sweep.resolve_dataset(ad) == "D4RL/door/human-v2"
     with pytest.raises(SystemExit, match="--preset needs one of"):
         sweep.parse_args(["--preset", "paper-mujocoo"])
 
