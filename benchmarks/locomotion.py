@@ -41,7 +41,7 @@ PAPER_METHODS = ("proto-sac", "frozen", "direct", "iql", "sac-scratch", "proto-t
 
 @dataclasses.dataclass
 class Args:
-    action: Literal["run", "status"] = "run"
+    action: tyro.conf.Positional[Literal["run", "status"]] = "run"
     datasets: tuple[str, ...] = DATASETS
     methods: tuple[str, ...] = PAPER_METHODS
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
