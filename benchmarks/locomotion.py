@@ -77,14 +77,19 @@ def missing_bundle(dataset: str, method: str) -> str | None:
 
 
 def publish(dataset: str, method: str, args: Args) -> None:
+    """Copy a finished sweep to the results tree; summary.json goes last, as it marks the sweep done."""
     src, dst = args.runs / dataset / method, args.results / dataset / method
     dst.mkdir(parents=True, exist_ok=True)
-    for name in ("summary.json", "config.json"):
-        shutil.copy2(src / name, dst / name)
-    with open(src / "metrics.jsonl", "rb") as f, gzip.open(dst / "metrics.jsonl.gz", "wb", mtime=0) as g:
+    shutil.copy2(src / "config.json", dst / "config.json")
+    tmp = dst / ".metrics.jsonl.gz.tmp"
+    with open(src / "metrics.jsonl", "rb") as f, open(tmp, "wb") as raw, \
+            gzip.GzipFile(fileobj=raw, mode="wb", filename="", mtime=0) as g:  # mtime 0: same bytes on a rerun
         shutil.copyfileobj(f, g)
+    tmp.replace(dst / "metrics.jsonl.gz")
     if (src / "report").is_dir():
         shutil.copytree(src / "report", dst / "report", dirs_exist_ok=True)
+    shutil.copy2(src / "summary.json", dst / ".summary.json.tmp")
+    (dst / ".summary.json.tmp").replace(dst / "summary.json")
 
 
 def main(args: Args) -> None:

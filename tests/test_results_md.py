@@ -92,3 +92,28 @@ def test_results_page_states_the_claims_with_numbers(published):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     agg = json.loads((published / "locomotion" / "aggregate.json").read_text())
     assert agg["frozen"]["iqm"][-1] == pytest.approx(61.0) and agg["direct"]["n_runs"] == 6
+
+
+def test_locomotion_runner_publishes_a_finished_sweep_reproducibly(tmp_path):
+    """benchmarks/locomotion.py's publish: config, gzipped metrics (same bytes on a rerun) and summary last."""
+    if "locomotion" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("locomotion", ROOT / "benchmarks" / "locomotion.py")
+        sys.modules["locomotion"] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules["locomotion"])
+    loco = sys.modules["locomotion"]
+    src = tmp_path / "runs" / "hopper-medium" / "direct"
+    (src / "report").mkdir(parents=True)
+    rows = "".join(json.dumps({"step": s, "normalized_score": float(s)}) + "\n" for s in (0, 100))
+    (src / "metrics.jsonl").write_text(rows)
+    (src / "config.json").write_text("{}")
+    (src / "summary.json").write_text('{"points": []}')
+    (src / "report" / "curves.png").write_bytes(b"png")
+    args = loco.Args(runs=tmp_path / "runs", results=tmp_path / "results")
+    loco.publish("hopper-medium", "direct", args)
+    dst = tmp_path / "results" / "hopper-medium" / "direct"
+    first = (dst / "metrics.jsonl.gz").read_bytes()
+    assert gzip.decompress(first).decode() == rows
+    assert (dst / "summary.json").read_text() == '{"points": []}' and (dst / "report" / "curves.png").exists()
+    assert sorted(p.name for p in dst.iterdir()) == ["config.json", "metrics.jsonl.gz", "report", "summary.json"]
+    loco.publish("hopper-medium", "direct", args)
+    assert (dst / "metrics.jsonl.gz").read_bytes() == first
