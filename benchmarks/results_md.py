@@ -128,15 +128,20 @@ def claims(table, cost: dict | None) -> list[str]:
     # (1) initial drop: PROTO's lowest early score relative to π₀ against direct finetuning's
     both = [d for d, per in table.items() if {"proto-sac", "direct"} <= set(per)]
     if both:
-        rows, wins = [], 0
+        rows, wins, p_all, q_all = [], 0, [], []
         for d in both:
             p = [r["drop"] - r["initial"] for r in table[d]["proto-sac"]["runs"]]
             q = [r["drop"] - r["initial"] for r in table[d]["direct"]["runs"]]
+            p_all, q_all = p_all + p, q_all + q
             pm, qm = float(np.nanmean(p)), float(np.nanmean(q))
             wins += pm > qm
             rows.append(f"| {d} | {fmt(pm)} | {fmt(qm)} |")
+        (pm, plo, _), (qm, _, qhi) = ci(p_all), ci(q_all)
+        verdict = "holds (CIs separate)" if plo > qhi else ("holds on the point estimate only (CIs overlap)"
+                                                             if pm > qm else "does not hold")
         out += [f"**(1) PROTO avoids the initial drop of direct finetuning.** Lowest score in the first 10% minus π₀'s "
-                f"score (mean over seeds; 0 = no drop). PROTO's drop is smaller on {wins} of {len(both)} datasets.", "",
+                f"score (mean over seeds; 0 = no drop). PROTO's drop is smaller on {wins} of {len(both)} datasets; "
+                f"IQM over all runs PROTO {ci_str(p_all)} vs direct {ci_str(q_all)}: {verdict}.", "",
                 "| dataset | PROTO | direct SAC finetune |", "|---|---|---|", *rows, ""]
     # (2) final: PROTO against Frozen and IQL
     for other, name in (("frozen", "Frozen (τ = 0)"), ("iql", "IQL finetune")):
