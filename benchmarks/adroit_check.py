@@ -232,7 +232,6 @@ def main(args: Args) -> dict:
 
     os.environ["XLA_FLAGS"] = single_thread_mjx_xla_flags()
 
-
     from proto_brax.checkpoints import write_json_atomic
 
     result = {

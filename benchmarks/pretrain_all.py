@@ -26,7 +26,11 @@ from pathlib import Path
 import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
-SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+sys.path.insert(0, str(ROOT))
+
+from proto_brax.envs import SINGLE_THREAD_XLA_FLAGS  # noqa: E402
+
+SINGLE_THREAD = " ".join(SINGLE_THREAD_XLA_FLAGS)  # the children's whole XLA_FLAGS
 
 
 @dataclasses.dataclass

@@ -186,23 +186,32 @@ def make_env(name: str, backend: str | None = None) -> Env:
     return brax_envs.get_environment(name, backend=backend, **dict(spec.kwargs))
 
 
+# One XLA thread (XLA's CPU client otherwise runs an Eigen pool and intra-op threads): one such process per core does
+# more updates per second in total than one multi-threaded process on the 2-core machine (FACTS.md), and the MJX speed
+# checks compare against native MuJoCo's one thread.
+SINGLE_THREAD_XLA_FLAGS = ("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1")
+
+
+def _with_xla_flags(flags: str | None, *extra: str) -> str:
+    """``flags`` (default: $XLA_FLAGS) with each of ``extra`` appended unless already present."""
+    flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
+    for flag in extra:
+        flags = flags if flag in flags else f"{flags} {flag}".strip()
+    return flags
+
+
 def mjx_xla_flags(flags: str | None = None) -> str:
     """XLA_FLAGS with the CPU scheduler fix MJX needs (FACTS.md: batched MJX hangs on CPU without it).
 
     Pure: returns the new value for the caller (an entry point, before jax initializes) to set.
     """
-    flag = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
-    flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
-    return flags if flag in flags else f"{flags} {flag}".strip()
+    return _with_xla_flags(flags, "--xla_cpu_enable_concurrency_optimized_scheduler=false")
 
 
 def single_thread_mjx_xla_flags(flags: str | None = None) -> str:
-    """``mjx_xla_flags`` plus one XLA thread: the setting of the MJX-vs-native MuJoCo speed checks, which compare
-    against native MuJoCo's one thread (so a shared machine's load hits both sides alike). Pure, as mjx_xla_flags."""
-    flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
-    for flag in ("--xla_cpu_multi_thread_eigen=false", "intra_op_parallelism_threads=1"):
-        flags = flags if flag in flags else f"{flags} {flag}".strip()
-    return mjx_xla_flags(flags)
+    """``mjx_xla_flags`` plus ``SINGLE_THREAD_XLA_FLAGS``: the setting of the MJX-vs-native MuJoCo speed checks (so a
+    shared machine's load hits both sides alike). Pure, as mjx_xla_flags."""
+    return mjx_xla_flags(_with_xla_flags(flags, *SINGLE_THREAD_XLA_FLAGS))
 
 
 def machine_info() -> dict:
