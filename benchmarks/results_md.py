@@ -96,6 +96,14 @@ def ci_str(values) -> str:
     return f"{fmt(m)} [{fmt(lo)}, {fmt(hi)}]"
 
 
+def verdict(proto, other) -> str:
+    """Whether PROTO's IQM is above the other method's: with separate 95% CIs, on the point estimate only, or not."""
+    (pm, plo, _), (om, _, ohi) = ci(proto), ci(other)
+    if plo > ohi:
+        return "holds (CIs separate)"
+    return "holds on the point estimate only (CIs overlap)" if pm > om else "does not hold"
+
+
 def ordered(methods) -> list[str]:
     """The paper's methods first, in ORDER, then any others alphabetically."""
     present = set(methods)
@@ -136,12 +144,9 @@ def claims(table, cost: dict | None) -> list[str]:
             pm, qm = float(np.nanmean(p)), float(np.nanmean(q))
             wins += pm > qm
             rows.append(f"| {d} | {fmt(pm)} | {fmt(qm)} |")
-        (pm, plo, _), (qm, _, qhi) = ci(p_all), ci(q_all)
-        verdict = "holds (CIs separate)" if plo > qhi else ("holds on the point estimate only (CIs overlap)"
-                                                             if pm > qm else "does not hold")
         out += [f"**(1) PROTO avoids the initial drop of direct finetuning.** Lowest score in the first 10% minus π₀'s "
                 f"score (mean over seeds; 0 = no drop). PROTO's drop is smaller on {wins} of {len(both)} datasets; "
-                f"IQM over all runs PROTO {ci_str(p_all)} vs direct {ci_str(q_all)}: {verdict}.", "",
+                f"IQM over all runs PROTO {ci_str(p_all)} vs direct {ci_str(q_all)}: {verdict(p_all, q_all)}.", "",
                 "| dataset | PROTO | direct SAC finetune |", "|---|---|---|", *rows, ""]
     # (2) final: PROTO against Frozen and IQL
     for other, name in (("frozen", "Frozen (τ = 0)"), ("iql", "IQL finetune")):
@@ -153,11 +158,8 @@ def claims(table, cost: dict | None) -> list[str]:
         o_all = [r["final"] for d in pairs for r in table[d][other]["runs"]]
         wins = sum(np.nanmean([r["final"] for r in table[d]["proto-sac"]["runs"]])
                    > np.nanmean([r["final"] for r in table[d][other]["runs"]]) for d in pairs)
-        (pm, plo, _), (om, _, ohi) = ci(p_all), ci(o_all)
-        verdict = "holds (CIs separate)" if plo > ohi else ("holds on the point estimate only (CIs overlap)"
-                                                             if pm > om else "does not hold")
         out += [f"**(2) PROTO ends above {name}** on {wins} of {len(pairs)} datasets (mean final score); final IQM "
-                f"over all runs PROTO {ci_str(p_all)} vs {ci_str(o_all)}: {verdict}.", ""]
+                f"over all runs PROTO {ci_str(p_all)} vs {ci_str(o_all)}: {verdict(p_all, o_all)}.", ""]
     # (3) cost
     if cost and "proto-sac" in cost.get("results", {}):
         res = cost["results"]

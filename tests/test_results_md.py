@@ -16,12 +16,13 @@ ROOT = Path(__file__).resolve().parents[1]
 STEPS = (100, 200, 300, 1000)  # the first 10% of a 1000-step run holds the evaluations at 100 (not 200)
 
 
-def load_module():
-    if "results_md" not in sys.modules:  # registered before it runs: its dataclass needs its module
-        spec = importlib.util.spec_from_file_location("results_md", ROOT / "benchmarks" / "results_md.py")
-        sys.modules["results_md"] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules["results_md"])
-    return sys.modules["results_md"]
+def load_module(name: str = "results_md"):
+    """benchmarks/NAME.py as a module (registered before it runs: its dataclass needs its module)."""
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+        sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules[name])
+    return sys.modules[name]
 
 
 def curve(method: str, seed: int) -> list[float]:
@@ -99,11 +100,7 @@ def test_results_page_states_the_claims_with_numbers(published):
 
 def test_locomotion_runner_publishes_a_finished_sweep_reproducibly(tmp_path):
     """benchmarks/locomotion.py's publish: config, gzipped metrics (same bytes on a rerun) and summary last."""
-    if "locomotion" not in sys.modules:
-        spec = importlib.util.spec_from_file_location("locomotion", ROOT / "benchmarks" / "locomotion.py")
-        sys.modules["locomotion"] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules["locomotion"])
-    loco = sys.modules["locomotion"]
+    loco = load_module("locomotion")
     src = tmp_path / "runs" / "hopper-medium" / "direct"
     (src / "report").mkdir(parents=True)
     rows = "".join(json.dumps({"step": s, "normalized_score": float(s)}) + "\n" for s in (0, 100))
