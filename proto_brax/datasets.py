@@ -233,7 +233,7 @@ def load_dataset(name_or_path: str | Path, size: int | None = None, seed: int = 
         try:
             return ds.load_minari(str(name_or_path))
         except Exception as e:  # minari raises its own error types (FileNotFoundError, ValueError, …) across versions
-            root = os.environ.get("MINARI_DATASETS_PATH", str(Path.home() / ".minari" / "datasets"))
+            root = os.environ.get(ds._MINARI_ENV, str(Path.home() / ".minari" / "datasets"))
             raise FileNotFoundError(
                 f"Minari dataset {name_or_path} is not available locally ({type(e).__name__}: {e}). Nothing is "
                 f"downloaded here: copy it to {root}/{name_or_path} (or set MINARI_DATASETS_PATH), or pass its "
