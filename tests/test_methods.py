@@ -208,8 +208,10 @@ def test_method_errors_name_the_fix(tmp_path):
     assert sweep.grid_axes(sweep.sweep_args("iql", grid=("expectile=0.7,0.9",)))["expectile"] == [0.7, 0.9]
     with pytest.raises(ValueError, match="starts from a random init"):
         sweep.resolve_checkpoint(sweep.sweep_args("sac-scratch", checkpoint=str(tmp_path)))
-    with pytest.raises(FileNotFoundError, match="python -m proto_brax.pretrain --dataset walker2d-medium --algo iql"):
-        sweep.resolve_checkpoint(sweep.sweep_args("iql", env="walker2d"))
+    # a dataset without a committed IQL bundle (walker2d-medium has one since the results runs)
+    assert not (sweep.REPO_ROOT / "checkpoints" / "pretrained" / "point-medium" / "iql").exists()
+    with pytest.raises(FileNotFoundError, match="python -m proto_brax.pretrain --dataset point-medium --algo iql"):
+        sweep.resolve_checkpoint(sweep.sweep_args("iql", env="point"))
 
 
 def test_bundle_kind_must_match_the_method():
