@@ -60,6 +60,9 @@ class EnvSpec:
     reward_scale_rule: str = "return-range"
     reward_shift: float = 0.0
     goal_task: bool = False  # episodes end at the goal with return 1: reports add success rate and steps to goal
+    # Adroit's success rule (D4RL / mjrl ``evaluate_success``): an episode succeeds when ``state.metrics["success"]``
+    # (D4RL's goal_achieved) held on more than this many of its steps; reports add the success rate.
+    success_steps: int | None = None
 
 
 class PointReach(Env):
@@ -140,14 +143,14 @@ REGISTRY: dict[str, EnvSpec] = {
     # may shift them (not re-measured here). No reward rescaling: IQL's and PROTO's reference code normalize the
     # rewards of D4RL locomotion only (return range) and AntMaze (r - 1); to our knowledge they feed Adroit rewards
     # raw, though we could not re-read PROTO's code here to confirm it. goal_task stays False: Adroit episodes run to
-    # the time limit and their returns are dense; the success flag is in state.metrics["success"] (D4RL's
-    # goal_achieved), which the evaluation code does not aggregate yet.
+    # the time limit and their returns are dense; success counts D4RL's goal_achieved steps (mjrl's evaluate_success:
+    # pen within 15° of its target on > 20 steps, door open / nail in on > 25).
     "pen": EnvSpec("pen", "mjx", episode_length=100, ref_random=96.262799, ref_expert=3076.8331,
-                   reward_scale_rule="none", kwargs=(("d4rl_reward", True),)),
+                   reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=20),
     "door": EnvSpec("door", "mjx", episode_length=200, ref_random=-56.512833, ref_expert=2880.5693,
-                    reward_scale_rule="none", kwargs=(("d4rl_reward", True),)),
+                    reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25),
     "hammer": EnvSpec("hammer", "mjx", episode_length=200, ref_random=-274.856578, ref_expert=12794.1340,
-                      reward_scale_rule="none", kwargs=(("d4rl_reward", True),)),
+                      reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25),
 }
 
 

@@ -319,17 +319,21 @@ def _prepare_out(args: SweepArgs, config: dict) -> None:
     write_json_atomic(out / "config.json", config)
 
 
-def episode_stats(env: str, returns, lengths) -> dict[str, float]:
+def episode_stats(env: str, returns, lengths, success_steps=None) -> dict[str, float]:
     """Mean evaluation episode length; on a goal task (``EnvSpec.goal_task``: return 1 at the goal, which ends the
-    episode) also the success rate and the mean steps to the goal of the successful episodes (the paper's Fig. 5)."""
+    episode) also the success rate and the mean steps to the goal of the successful episodes (the paper's Fig. 5); on
+    a task with a success-step rule (``EnvSpec.success_steps``, Adroit) the success rate by that rule."""
     from proto_brax.envs import get_spec
 
+    spec = get_spec(env)
     returns, lengths = np.asarray(returns), np.asarray(lengths)
     out = {"eval_length": float(lengths.mean())}
-    if get_spec(env).goal_task:
+    if spec.goal_task:
         success = returns > 0
         out["success_rate"] = float(success.mean())
         out["steps_to_goal"] = float(lengths[success].mean()) if success.any() else float("nan")
+    elif spec.success_steps is not None and success_steps is not None:
+        out["success_rate"] = float((np.asarray(success_steps) > spec.success_steps).mean())
     return out
 
 
@@ -344,7 +348,7 @@ def _rows(chunk: int, m: dict, grid, env: str, updates_per_s: float) -> list[dic
         row["step"] = int(m["step"][i])
         row["normalized_score"] = float(normalized_score(env, row["eval_return"]))
         row["eval_returns"] = [float(x) for x in m["eval_returns"][i]]
-        row.update(episode_stats(env, m["eval_returns"][i], m["eval_lengths"][i]))
+        row.update(episode_stats(env, m["eval_returns"][i], m["eval_lengths"][i], m["eval_success_steps"][i]))
         row["diverged"] = not all(np.isfinite(row[k]) for k in ("eval_return", "critic_loss", "q_mean"))
         row["grid_updates_per_s"] = updates_per_s
         rows.append(row)
@@ -411,6 +415,7 @@ def summarize_runs(rows: list[dict], grid_keys: list[str]) -> list[dict]:
         rec["final_dev_pi0"] = summarize([rs[-1]["dev_pi0"] for rs in runs])
         if all("success_rate" in rs[-1] for rs in runs):  # goal tasks: the paper's success and steps to goal
             rec["final_success_rate"] = summarize([rs[-1]["success_rate"] for rs in runs])
+        if all("steps_to_goal" in rs[-1] for rs in runs):
             rec["final_steps_to_goal"] = summarize([rs[-1]["steps_to_goal"] for rs in runs])
         if all(initial):  # π₀ at step 0, and the initial drop: the lowest score within the first 10% of the run
             rec["initial_normalized_score"] = summarize([i[0]["normalized_score"] for i in initial])
@@ -551,16 +556,17 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         bar.set_postfix(eval=f"{np.mean(finite) if finite else float('nan'):.1f}", upd_s=f"{updates_per_s:.0f}")
 
     program = compile_grid(ft, mesh, per_run)
-    def on_start(returns, lengths):
+    def on_start(stats):
         """π₀ at step 0 (chunk −1): the reference of the initial drop; curves start there."""
         if not lead:
             return
         from proto_brax.envs import normalized_score
 
+        returns, lengths, success_steps = stats
         rows = [{"chunk": -1, "run": i, **point, "step": 0, "eval_return": float(np.mean(returns[i])),
                  "eval_returns": [float(x) for x in returns[i]],
                  "normalized_score": float(normalized_score(cfg.env, float(np.mean(returns[i])))),
-                 **episode_stats(cfg.env, returns[i], lengths[i]),
+                 **episode_stats(cfg.env, returns[i], lengths[i], success_steps[i]),
                  "diverged": not bool(np.all(np.isfinite(returns[i]))), "initial": True,
                  "dev_pi0": 0.0, "dev_pibar": 0.0, "grid_updates_per_s": float("nan")}
                 for i, point in enumerate(grid.points)]

@@ -20,7 +20,7 @@ from proto_brax.data.generate import collect, flatten_env_major, uniform_policy
 from proto_brax.data.replay import replay_init, replay_insert, replay_sample
 from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train import online
-from proto_brax.train.evaluate import run_episodes, run_episodes_with_lengths
+from proto_brax.train.evaluate import run_episode_stats, run_episodes, run_episodes_with_lengths
 from proto_brax.train.grid import make_grid, run_grid
 
 TINY = FinetuneConfig(
@@ -110,13 +110,54 @@ def test_episode_lengths_count_steps_to_termination():
     np.testing.assert_array_equal(fn(key, still)[1], 30)
 
 
+def test_success_steps_count_the_alive_steps_flagged_success():
+    """A point env flagging success within 0.5 of the origin: pushing right, the count follows from the start by
+    hand (steps up to and including the terminating one); standing still counts every step or none. Without a
+    success metric (the plain point env) the count is 0."""
+
+    class PointNearOrigin(envs.PointReach):  # reset and step carry the metric, as Brax envs' metrics must
+        def reset(self, rng):
+            return self._flag(super().reset(rng))
+
+        def step(self, state, action):
+            return self._flag(super().step(state, action))
+
+        @staticmethod
+        def _flag(s):
+            return s.replace(metrics={"success": (jnp.linalg.norm(s.pipeline_state) < 0.5).astype(jnp.float32)})
+
+    env = PointNearOrigin()
+    key = jax.random.PRNGKey(7)
+    fn = jax.jit(lambda k, pol, e: run_episode_stats(e, 30, pol, k, 16), static_argnums=(1, 2))
+    push = lambda obs, k: jnp.ones((obs.shape[0], 2))  # noqa: E731
+    still = lambda obs, k: jnp.zeros((obs.shape[0], 2))  # noqa: E731
+    starts = np.asarray(jax.vmap(env.reset)(jax.random.split(jax.random.split(key)[0], 16)).pipeline_state)
+    pushed = np.asarray(fn(key, push, env).success_steps)
+    for x0, n in zip(starts, pushed):
+        x, wins = x0.astype(np.float32), 0
+        while True:
+            x = x + np.float32(0.2) * np.float32(1.0)
+            wins += int(np.linalg.norm(x) < 0.5)
+            if np.max(np.abs(x)) > 1.9:
+                break
+        assert n == wins
+    assert pushed.max() > 0  # some start passes near the origin: the check above is not all zeros
+    near = np.linalg.norm(starts, axis=1) < 0.5
+    assert 0 < near.sum() < 16
+    np.testing.assert_array_equal(fn(key, still, env).success_steps, np.where(near, 30, 0))
+    np.testing.assert_array_equal(fn(key, still, envs.PointReach()).success_steps, 0)
+
+
 def test_goal_task_episode_stats():
     from proto_brax.sweep import episode_stats
 
     stats = episode_stats("antmaze-umaze", [1.0, 0.0, 1.0], [100, 700, 300])
     assert stats == pytest.approx({"eval_length": 1100 / 3, "success_rate": 2 / 3, "steps_to_goal": 200.0})
     assert np.isnan(episode_stats("antmaze-umaze", [0.0, 0.0], [700, 700])["steps_to_goal"])
-    assert episode_stats("hopper", [10.0, 20.0], [50, 150]) == {"eval_length": 100.0}
+    assert episode_stats("hopper", [10.0, 20.0], [50, 150], [0, 0]) == {"eval_length": 100.0}
+    # Adroit (D4RL's rule): pen succeeds on more than 20 goal-achieved steps, hammer on more than 25.
+    assert episode_stats("pen", [1.0] * 3, [100] * 3, [20, 21, 100])["success_rate"] == pytest.approx(2 / 3)
+    assert episode_stats("hammer", [1.0] * 2, [200] * 2, [25, 26])["success_rate"] == 0.5
 
 
 # ----------------------------------------------------------------------------------------------------------- replay

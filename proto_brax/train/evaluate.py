@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -16,21 +16,42 @@ def run_episodes(
     return run_episodes_with_lengths(env, horizon, policy, key, episodes)[0]
 
 
+class EpisodeStats(NamedTuple):
+    """Per evaluation episode: return, length (steps up to and including the one that ended it, ``horizon`` if none
+    did: on a goal task that terminates at the goal, the steps to the goal) and success steps (steps whose
+    ``state.metrics["success"]`` was set, 0 where the env has no such metric: D4RL's ``goal_achieved`` count)."""
+
+    returns: jax.Array
+    lengths: jax.Array
+    success_steps: jax.Array
+
+
 def run_episodes_with_lengths(
     env, horizon: int, policy: Callable[[jax.Array, jax.Array], jax.Array], key: jax.Array, episodes: int
 ) -> tuple[jax.Array, jax.Array]:
-    """(returns [episodes], lengths [episodes] int32): an episode's length is its steps up to and including the one
-    that ended it (``horizon`` if none did) — on a goal task that terminates at the goal, the steps to the goal."""
+    """(returns [episodes], lengths [episodes] int32) of ``run_episode_stats``."""
+    return run_episode_stats(env, horizon, policy, key, episodes)[:2]
+
+
+def run_episode_stats(
+    env, horizon: int, policy: Callable[[jax.Array, jax.Array], jax.Array], key: jax.Array, episodes: int
+) -> EpisodeStats:
+    """``EpisodeStats`` ([episodes] each; lengths and success steps int32) of ``episodes`` episodes side by side."""
     k_reset, k_run = jax.random.split(key)
     s = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
 
+    def success(state) -> jax.Array:  # decided at trace time: Brax's locomotion envs have no success metric
+        return state.metrics["success"] > 0 if "success" in state.metrics else jnp.zeros(episodes, bool)
+
     def body(carry, k):
-        s, ret, alive, length = carry
+        s, ret, alive, length, wins = carry
         s = jax.vmap(env.step)(s, policy(s.obs, k))
         ret = ret + jnp.where(alive, s.reward, 0.0)  # where, not multiply: a finished episode may hold NaNs
         length = length + alive.astype(jnp.int32)
-        return (s, ret, jnp.logical_and(alive, s.done == 0), length), None
+        wins = wins + jnp.logical_and(alive, success(s)).astype(jnp.int32)
+        return (s, ret, jnp.logical_and(alive, s.done == 0), length, wins), None
 
-    init = (s, jnp.zeros(episodes), jnp.ones(episodes, bool), jnp.zeros(episodes, jnp.int32))
-    (_, ret, _, length), _ = lax.scan(body, init, jax.random.split(k_run, horizon))
-    return ret, length
+    zeros = jnp.zeros(episodes, jnp.int32)
+    init = (s, jnp.zeros(episodes), jnp.ones(episodes, bool), zeros, zeros)
+    (_, ret, _, length, wins), _ = lax.scan(body, init, jax.random.split(k_run, horizon))
+    return EpisodeStats(ret, length, wins)

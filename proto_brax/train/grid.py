@@ -18,6 +18,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from proto_brax.config import HParams, validate_hparams
+from proto_brax.train.evaluate import EpisodeStats
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,7 +131,7 @@ class GridProgram:
 
     init: Callable  # (hparams[G], keys[G], pretrained, dataset) -> state[G]
     chunk: Callable  # (state[G], hparams[G], dataset, start) -> (state[G], metrics[G])
-    initial_eval: Callable  # state[G] -> (returns, lengths) [G, eval_episodes] of π₀ (before any online step)
+    initial_eval: Callable  # state[G] -> EpisodeStats, each [G, eval_episodes], of π₀ (before any online step)
 
 
 def compile_grid(ft, mesh: Mesh, per_run_pretrained: bool = False) -> GridProgram:
@@ -156,7 +157,7 @@ def run_grid(
     ft, grid: Grid, pretrained=None, dataset=None, mesh: Mesh | None = None,
     program: GridProgram | None = None, callback: Callable[[int, dict, Any], None] | None = None,
     restore: Callable[[Any], tuple[Any, int]] | None = None, per_run_pretrained: bool = False,
-    on_start: Callable[[np.ndarray, np.ndarray], None] | None = None,
+    on_start: Callable[[EpisodeStats], None] | None = None,
 ):
     """Run every point of ``grid`` to the end in one compiled program, sharded over ``mesh``.
 
@@ -164,8 +165,8 @@ def run_grid(
     ``pretrained`` is shared by every run, or (``per_run_pretrained``) has a leading axis of grid.size entries.
     ``callback(chunk_index, metrics, state)`` sees each chunk's host metrics and the (padded, sharded) state, e.g. to
     log and checkpoint; ``restore(initial_state) -> (state, chunks_done)`` resumes an interrupted run;
-    ``on_start(returns, lengths)`` (each [grid.size, eval_episodes]) receives π₀'s step-0 evaluation (not called on a
-    resume).
+    ``on_start(stats)`` receives π₀'s step-0 evaluation (``EpisodeStats`` of host arrays [grid.size, eval_episodes];
+    not called on a resume).
     """
     mesh = mesh or grid_mesh()
     program = program or compile_grid(ft, mesh, per_run_pretrained)
@@ -182,8 +183,8 @@ def run_grid(
     if restore is not None:
         state, start = restore(state)
     if on_start is not None and start == 0:
-        returns, lengths = host_gather(program.initial_eval(state))
-        on_start(np.asarray(returns)[: grid.size], np.asarray(lengths)[: grid.size])
+        stats = host_gather(program.initial_eval(state))
+        on_start(EpisodeStats(*(np.asarray(x)[: grid.size] for x in stats)))
     history = []
     for c in range(start, ft.cfg.num_chunks):
         start_step = replicate(jnp.asarray(c * ft.cfg.eval_every, jnp.int32), mesh)

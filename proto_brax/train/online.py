@@ -31,7 +31,7 @@ from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import OfflineDataset
 from proto_brax.data.replay import ReplayBuffer, replay_accumulate_returns, replay_init, replay_insert, replay_sample
 from proto_brax.networks import make_networks
-from proto_brax.train.evaluate import run_episodes_with_lengths
+from proto_brax.train.evaluate import EpisodeStats, run_episode_stats
 
 # FinetuneConfig.algo -> the online update; sweep methods (proto_brax.methods) pick one and its settings.
 ALGORITHMS = {"sac": sac.ONLINE, "td3": td3.ONLINE, "iql": iql.ONLINE, "awac": awac.ONLINE, "pex": pex.ONLINE,
@@ -142,11 +142,11 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
         new = TrainState(learner=learner, buffer=buffer, env=env_state, key=key, step=state.step + 1)
         return new, (stats, updated)
 
-    def evaluate(learner: Learner, key: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """(returns, lengths) of ``eval_episodes`` deterministic episodes run side by side (each to termination or
-        horizon; on a goal task the length is the steps to the goal)."""
+    def evaluate(learner: Learner, key: jax.Array) -> EpisodeStats:
+        """Returns, lengths and success steps of ``eval_episodes`` deterministic episodes run side by side (each to
+        termination or horizon; on a goal task the length is the steps to the goal)."""
         policy = lambda obs, k: algo.act(nets, learner, obs, k, None, deterministic=True)  # noqa: E731
-        return run_episodes_with_lengths(env, horizon, policy, key, cfg.eval_episodes)
+        return run_episode_stats(env, horizon, policy, key, cfg.eval_episodes)
 
     def chunk(state: TrainState, hp: HParams, dataset, start: jax.Array):
         TRACE_COUNT["chunk"] += 1
@@ -160,7 +160,7 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
                    if k not in host_keys}
         episodes = jnp.sum(stats["episodes"])
         key, k_eval, k_batch, k_dev1, k_dev2 = jax.random.split(state.key, 5)
-        returns, lengths = evaluate(state.learner, k_eval)
+        returns, lengths, success_steps = evaluate(state.learner, k_eval)
         # Policy drift diagnostics on a fresh training batch: KL(π‖π̄) and KL(π‖π₀) (TD3: mean squared distance).
         batch = replay_sample(k_batch, state.buffer, dataset, cfg.batch_size, cfg.sampling, cfg.offline_fraction)
         lrn = state.learner
@@ -174,6 +174,7 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
             eval_return=jnp.mean(returns),
             eval_returns=returns,
             eval_lengths=lengths,
+            eval_success_steps=success_steps,
             dev_pibar=algo.deviation(nets, lrn.actor, lrn.pibar, batch.observations, k_dev1),
             dev_pi0=algo.deviation(nets, lrn.actor, lrn.pi0, batch.observations, k_dev2),
         )
