@@ -158,7 +158,7 @@ def test_baseline_improves_a_weak_bundle_online(name, kind):
     ft = make_finetune(cfg)
     hp = HParams.create(lr_actor=1e-3, lr_critic=1e-3)
     start = ft.init(hp, jax.random.PRNGKey(0), bundle(kind), poor_data())
-    returns0, _ = jax.jit(ft.evaluate)(start.learner, jax.random.PRNGKey(1))
+    returns0 = jax.jit(ft.evaluate)(start.learner, jax.random.PRNGKey(1)).returns
     score0 = envs.normalized_score("point", float(jnp.mean(returns0)))
     final, m = jax.jit(ft.finetune)(hp, jax.random.PRNGKey(0), bundle(kind), poor_data())
     score = np.asarray(envs.normalized_score("point", m["eval_return"]))
@@ -295,7 +295,7 @@ def test_calql_finetunes_point_and_keeps_buffer_returns_exact():
     b = bundle("calql", steps=100)  # CQL extracts a good policy even from the poor data: stop it early
     hp = HParams.create(lr_actor=1e-3, lr_critic=1e-3, alpha_sac_init=1.0, target_entropy_scale=-1.0, cql_alpha=1.0)
     start = ft.init(hp, jax.random.PRNGKey(0), b, data)
-    returns0, _ = jax.jit(ft.evaluate)(start.learner, jax.random.PRNGKey(1))
+    returns0 = jax.jit(ft.evaluate)(start.learner, jax.random.PRNGKey(1)).returns
     score0 = envs.normalized_score("point", float(jnp.mean(returns0)))
     final, m = jax.jit(ft.finetune)(hp, jax.random.PRNGKey(0), b, data)
     score = np.asarray(envs.normalized_score("point", m["eval_return"]))
@@ -392,7 +392,7 @@ def test_off2on_finetunes_point_from_a_cql_ensemble():
     ft = make_finetune(cfg)
     hp = HParams.create(lr_actor=1e-3, lr_critic=1e-3, alpha_sac_init=1.0, target_entropy_scale=-1.0)
     start = ft.init(hp, jax.random.PRNGKey(0), b, poor_data())
-    returns0, _ = jax.jit(ft.evaluate)(start.learner, jax.random.PRNGKey(1))
+    returns0 = jax.jit(ft.evaluate)(start.learner, jax.random.PRNGKey(1)).returns
     score0 = envs.normalized_score("point", float(jnp.mean(returns0)))
     _, m = jax.jit(ft.finetune)(hp, jax.random.PRNGKey(0), b, poor_data())
     score = np.asarray(envs.normalized_score("point", m["eval_return"]))
