@@ -2,6 +2,7 @@
 
     python benchmarks/locomotion.py run                     # all pending sweeps, in order, each resumable
     python benchmarks/locomotion.py run --datasets hopper-medium --methods proto-sac frozen
+    python benchmarks/locomotion.py run --methods ablate-tau ablate-eta   # the appendix's τ and η ablations
     python benchmarks/locomotion.py status                  # what is done, running or missing
 
 Each (dataset, method) is one ``python -m proto_brax.sweep --preset paper-mujoco-100k --algo METHOD`` over the seeds,
@@ -12,6 +13,10 @@ the work tree, so a later checkout on the same machine resumes them) with ``--re
 running it again continues where it stopped; a finished sweep's ``summary.json``, ``config.json`` and gzipped
 ``metrics.jsonl`` are copied to ``benchmarks/results/locomotion/DATASET/METHOD/``. Methods whose bundle kind is not
 committed for a dataset are skipped with the command that makes the bundle.
+
+The ablations (the paper's appendix: τ ∈ {0.5, 1, 2} × τ₀ and η ∈ {0.8, 0.9, 1.0}) are the pseudo-methods
+``ablate-tau`` and ``ablate-eta``, run on ``--ablation-datasets`` only: one PROTO-SAC sweep each over the two
+non-default values × the seeds in one vmapped program; the default value is the ``proto-sac`` sweep itself.
 """
 
 from __future__ import annotations
@@ -37,13 +42,18 @@ from proto_brax.methods import METHODS  # noqa: E402
 DATASETS = tuple(f"{env}-{kind}" for env in ("hopper", "walker2d", "halfcheetah", "ant")
                  for kind in ("medium", "medium-replay", "random"))
 PAPER_METHODS = ("proto-sac", "frozen", "direct", "iql", "sac-scratch", "proto-td3", "proto-bc")
+TAU0, ETA0 = 5e-3, 0.9  # paper-mujoco-100k's τ and η: the ablations' middle values (the proto-sac sweeps)
+# Ablation -> the sweep flag and its two non-default values (0.5 and 2 × τ₀; η 0.8 and 1.0).
+ABLATIONS = {"ablate-tau": ("--tau", (0.5 * TAU0, 2 * TAU0)), "ablate-eta": ("--eta", (0.8, 1.0))}
 
 
 @dataclasses.dataclass
 class Args:
     action: tyro.conf.Positional[Literal["run", "status"]] = "run"
     datasets: tuple[str, ...] = DATASETS
-    methods: tuple[str, ...] = PAPER_METHODS
+    methods: tuple[str, ...] = PAPER_METHODS + tuple(ABLATIONS)
+    ablation_datasets: tuple[str, ...] = ("hopper-medium", "walker2d-medium", "halfcheetah-medium")
+    """Where ``ablate-tau`` / ``ablate-eta`` run (the paper's appendix ablates on three datasets)."""
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
     steps: int = 50_000  # online budget per run (paper: 10⁶); stated in every summary
     eval_every: int = 2_500
@@ -57,17 +67,21 @@ class Args:
 
 def sweep_command(dataset: str, method: str, args: Args, resume: bool) -> list[str]:
     env = dataset.split("-")[0]
-    cmd = [sys.executable, "-m", "proto_brax.sweep", "--preset", "paper-mujoco-100k", "--algo", method,
+    algo = "proto-sac" if method in ABLATIONS else method
+    cmd = [sys.executable, "-m", "proto_brax.sweep", "--preset", "paper-mujoco-100k", "--algo", algo,
            "--env", env, "--seeds", *map(str, args.seeds), "--steps", str(args.steps),
            "--eval-every", str(args.eval_every), "--anneal-horizon", str(float(args.steps)),
            "--out", str(args.runs / dataset / method)]
-    if METHODS[method].defaults.get("dataset") != "none":
+    if method in ABLATIONS:
+        flag, values = ABLATIONS[method]
+        cmd += [flag, *map(str, values)]
+    if METHODS[algo].defaults.get("dataset") != "none":
         cmd += ["--dataset", dataset, "--dataset-size", "1000000"]
     return cmd + (["--resume"] if resume else [])
 
 
 def missing_bundle(dataset: str, method: str) -> str | None:
-    m = METHODS[method]
+    m = METHODS["proto-sac" if method in ABLATIONS else method]
     if not m.bundles:
         return None
     kind = m.bundles[0]
@@ -93,8 +107,13 @@ def publish(dataset: str, method: str, args: Args) -> None:
 
 
 def main(args: Args) -> None:
+    unknown = [m for m in args.methods if m not in METHODS and m not in ABLATIONS]
+    if unknown:
+        raise SystemExit(f"unknown --methods {unknown}: choose from {sorted(METHODS)} or {sorted(ABLATIONS)}.")
     for dataset in args.datasets:
         for method in args.methods:
+            if method in ABLATIONS and dataset not in args.ablation_datasets:
+                continue
             out = args.runs / dataset / method
             done = (args.results / dataset / method / "summary.json").exists()
             need = missing_bundle(dataset, method)
@@ -115,9 +134,11 @@ def main(args: Args) -> None:
                 print(f"FAILED: {dataset} {method}", flush=True)
                 continue
             publish(dataset, method, args)
-            summary = json.loads((out / "summary.json").read_text())["points"][0]
-            print(f"  final normalized {summary['final_normalized_score']['mean']:.1f} ± "
-                  f"{summary['final_normalized_score']['std']:.1f}", flush=True)
+            summary = json.loads((out / "summary.json").read_text())
+            for point in summary["points"]:
+                where = " ".join(f"{k} {point[k]:g}" for k in summary["grid_keys"])
+                print(f"  {where}: final normalized {point['final_normalized_score']['mean']:.1f} ± "
+                      f"{point['final_normalized_score']['std']:.1f}", flush=True)
 
 
 if __name__ == "__main__":

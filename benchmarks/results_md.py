@@ -27,6 +27,9 @@ import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from locomotion import ABLATIONS, ETA0, TAU0  # noqa: E402
 
 from proto_brax.checkpoints import write_json_atomic  # noqa: E402
 from proto_brax.methods import METHODS  # noqa: E402
@@ -54,7 +57,7 @@ def run_scores(sweep: Sweep) -> list[dict]:
         rows = [row for row in r.rows if not row.get("initial")]
         if not rows:
             continue
-        out.append({"seed": r.seed, "initial": init[0]["normalized_score"] if init else math.nan,
+        out.append({"seed": r.seed, "point": r.point, "initial": init[0]["normalized_score"] if init else math.nan,
                     "drop": float(lowest_early_scores([rows])[0]), "final": float(rows[-1]["normalized_score"]),
                     "diverged": r.diverged, "steps": [row["step"] for row in rows],
                     "curve": [float(row["normalized_score"]) for row in rows]})
@@ -62,9 +65,10 @@ def run_scores(sweep: Sweep) -> list[dict]:
 
 
 def offline_score(bundles: Path, dataset: str, method: str) -> float:
-    if not METHODS[method].bundles:
+    kinds = METHODS["proto-sac" if method in ABLATIONS else method].bundles
+    if not kinds:
         return math.nan
-    meta = bundles / dataset / METHODS[method].bundles[0] / "metadata.json"
+    meta = bundles / dataset / kinds[0] / "metadata.json"
     if not meta.exists():
         return math.nan
     ev = json.loads(meta.read_text()).get("offline_eval") or {}
@@ -72,7 +76,8 @@ def offline_score(bundles: Path, dataset: str, method: str) -> float:
 
 
 def collect(args: Args) -> dict[str, dict[str, dict]]:
-    """{dataset: {method: {"runs": [...], "summary": {...}, "config": {...}, "offline": float}}}."""
+    """{dataset: {method: {"runs": [...], "summary": {...}, "config": {...}, "offline": float}}}; the ablation sweeps
+    (``ablate-*``) are listed as methods too, and kept out of the method tables by ``methods_of``."""
     table: dict[str, dict[str, dict]] = {}
     for d in sorted(p for p in args.results.glob("*/*") if (p / "summary.json").exists()):
         dataset, method = d.parent.name, d.name
@@ -110,8 +115,13 @@ def ordered(methods) -> list[str]:
     return [m for m in ORDER if m in present] + sorted(present - set(ORDER))
 
 
+def methods_of(per: dict) -> list[str]:
+    """A dataset's method sweeps (not its ablation sweeps), in ORDER."""
+    return ordered(m for m in per if m not in ABLATIONS)
+
+
 def methods_in(table) -> list[str]:
-    return ordered(m for per in table.values() for m in per)
+    return ordered(m for per in table.values() for m in methods_of(per))
 
 
 def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
@@ -119,7 +129,7 @@ def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
              "| method | offline | initial (π₀) | lowest in first 10% | final mean ± std | final IQM [95% CI] "
              "| seeds |",
              "|---|---|---|---|---|---|---|"]
-    for m in ordered(per):
+    for m in methods_of(per):
         runs = per[m]["runs"]
         fin = [r["final"] for r in runs]
         finite = [v for v in fin if math.isfinite(v)]
@@ -169,6 +179,36 @@ def claims(table, cost: dict | None) -> list[str]:
                 f"{fmt(ratio, 2)} (`{cost.get('command', '')}`, {cost.get('date', '')}; "
                 f"{cost.get('status', '')}).", ""]
     return out
+
+
+def ablation_tables(table) -> list[str]:
+    """The appendix's ablations: per dataset and value, PROTO-SAC's scores; the default value (1 × τ₀, η = 0.9) is
+    the dataset's proto-sac sweep, the others its ablate-tau / ablate-eta sweep (one vmapped program each)."""
+    out = []
+    for ablation, (axis, name, default) in {"ablate-tau": (0, "τ", TAU0), "ablate-eta": (1, "η", ETA0)}.items():
+        datasets = [d for d in sorted(table) if ablation in table[d]]
+        if not datasets:
+            continue
+        flag, others = ABLATIONS[ablation]
+        values = sorted({default, *others})
+        rows = []
+        for d in datasets:
+            runs = table[d][ablation]["runs"] + table[d].get("proto-sac", {}).get("runs", [])
+            for v in values:
+                rs = [r for r in runs if math.isclose(r["point"][axis], v, rel_tol=1e-9)]
+                fin = [r["final"] for r in rs]
+                cells = (f"{fmt(np.nanmean([r['initial'] for r in rs]))} | "
+                         f"{fmt(np.nanmean([r['drop'] for r in rs]))} | {fmt(np.nanmean(fin))} ± "
+                         f"{fmt(np.nanstd(fin))} | {ci_str(fin)}") if rs else "– | – | – | –"
+                rows.append(f"| {d} | {v:g}{' (default)' if v == default else ''} | {cells} | {len(rs)} |")
+        scale = f" = {{{', '.join(f'{v / TAU0:g}' for v in values)}}} × τ₀" if axis == 0 else ""
+        out += [f"### {name} ∈ {{{', '.join(f'{v:g}' for v in values)}}}{scale}", "",
+                f"`python benchmarks/locomotion.py run --methods proto-sac {ablation}`: PROTO-SAC with "
+                f"`{flag} {' '.join(f'{v:g}' for v in others)}` in one sweep; the default value is the proto-sac "
+                "sweep.",
+                "", f"| dataset | {name} | initial (π₀) | lowest in first 10% | final mean ± std | final IQM [95% CI] "
+                "| seeds |", "|---|---|---|---|---|---|---|", *rows, ""]
+    return ["## Ablations (the paper's appendix)", "", *out] if out else []
 
 
 def cost_table(cost: dict | None) -> list[str]:
@@ -240,8 +280,9 @@ def render(args: Args) -> str:
         lines.append(f"| {m} | {len(ds)} | {len(runs)} | {ci_str([r['final'] for r in runs])} | "
                      f"{ci_str([r['drop'] for r in runs])} |")
     lines += ["", "## Per dataset", ""]
-    for d in sorted(table):
+    for d in sorted(d for d, per in table.items() if methods_of(per)):
         lines += dataset_table(d, table[d])
+    lines += ablation_tables(table)
     lines += cost_table(cost)
     return "\n".join(lines).rstrip() + "\n"
 

@@ -416,3 +416,8 @@ def test_locomotion_runner_commands_parse():
         assert parsed.anneal_horizon == 20_000 and parsed.seeds == (0, 1, 2, 3, 4) and parsed.resume
         want = "none" if method == "sac-scratch" else "walker2d-medium-replay"
         assert parsed.dataset == want
+    # the ablations: PROTO-SAC over the two non-default values of one axis (0.5 and 2 × τ₀; η 0.8 and 1.0)
+    tau = sweep.parse_args(locomotion.sweep_command("hopper-medium", "ablate-tau", args, resume=False)[3:])
+    eta = sweep.parse_args(locomotion.sweep_command("hopper-medium", "ablate-eta", args, resume=False)[3:])
+    assert tau.algo == eta.algo == "proto-sac" and tau.dataset == "hopper-medium" and not tau.resume
+    assert tau.tau == (0.0025, 0.01) and tau.eta == (0.9,) and eta.eta == (0.8, 1.0) and eta.tau == (0.005,)

@@ -25,22 +25,25 @@ def load_module(name: str = "results_md"):
     return sys.modules[name]
 
 
-def curve(method: str, seed: int) -> list[float]:
-    """π₀ at 30; direct collapses early then recovers; PROTO dips a little and ends high; frozen ends lower."""
+def curve(method: str, seed: int, tau: float = 0.005) -> list[float]:
+    """π₀ at 30; direct collapses early then recovers; PROTO dips a little and ends high; frozen ends lower; the τ
+    ablation's PROTO ends 1000·τ higher."""
     return {"proto-sac": [30.0, 28.0 - seed, 50.0, 80.0 + seed],
             "direct": [30.0, 5.0 + seed, 40.0, 70.0 + seed],
-            "frozen": [30.0, 31.0, 40.0, 60.0 + seed]}[method]
+            "frozen": [30.0, 31.0, 40.0, 60.0 + seed],
+            "ablate-tau": [30.0, 20.0, 50.0, 80.0 + seed + 1000 * tau]}[method]
 
 
-def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2)) -> Path:
+def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,)) -> Path:
     d = root / dataset / method
     d.mkdir(parents=True)
     rows = []
-    for run, seed in enumerate(seeds):
-        base = {"run": run, "seed": seed, "tau": 0.005, "eta": 0.9, "alpha0": 2.0, "dev_pi0": 0.1, "diverged": False,
+    for run, (tau, seed) in enumerate((t, s) for t in taus for s in seeds):
+        base = {"run": run, "seed": seed, "tau": tau, "eta": 0.9, "alpha0": 2.0, "dev_pi0": 0.1, "diverged": False,
                 "grid_updates_per_s": 100.0}
         rows.append({**base, "chunk": -1, "step": 0, "eval_return": 300.0, "normalized_score": 30.0, "initial": True})
-        for c, (step, score) in enumerate(zip(STEPS, curve(method, seed)[1:] + [curve(method, seed)[-1]])):
+        scores = curve(method, seed, tau)
+        for c, (step, score) in enumerate(zip(STEPS, scores[1:] + [scores[-1]])):
             rows.append({**base, "chunk": c, "step": step, "eval_return": 10 * score, "normalized_score": score})
     with gzip.open(d / "metrics.jsonl.gz", "wt") as f:
         f.write("\n".join(json.dumps(r) for r in rows) + "\n")
@@ -55,6 +58,7 @@ def published(tmp_path_factory):
     for dataset in ("hopper-medium", "walker2d-medium"):
         for method in ("proto-sac", "direct", "frozen"):
             publish(root / "locomotion", dataset, method)
+    publish(root / "locomotion", "hopper-medium", "ablate-tau", taus=(0.0025, 0.01))
     cost = {"command": "python benchmarks/methods_cost.py", "date": "today", "env": "hopper", "status": "test",
             "results": {"proto-sac": {"seconds_per_1e5_steps": 110.0, "ratio_to_proto_sac": 1.0},
                         "sac-scratch": {"seconds_per_1e5_steps": 100.0, "ratio_to_proto_sac": 100 / 110}}}
@@ -92,6 +96,11 @@ def test_results_page_states_the_claims_with_numbers(published):
     assert "PROTO ends above IQL finetune:** not measured yet" in text
     assert "= 1.10" in text  # (3) 110 / 100
     assert "| proto-sac | 2 | 6 | 81.0 [80.2, 81.8] | 27.0 [" in text  # IQM of 80, 81, 82 twice
+    # the τ ablation: its two values from its sweep, τ₀ from the proto-sac sweep; kept out of the method tables
+    assert "| hopper-medium | 0.0025 | 30.0 | 20.0 | 83.5 ± 0.8 | 83.5 [" in text
+    assert "| hopper-medium | 0.005 (default) | 30.0 | 27.0 | 81.0 ± 0.8 | 81.0 [" in text
+    assert "| hopper-medium | 0.01 | 30.0 | 20.0 | 91.0 ± 0.8 | 91.0 [" in text
+    assert "= {0.5, 1, 2} × τ₀" in text and "| ablate-tau |" not in text and "η ∈" not in text
     png = published / "locomotion" / "aggregate.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     agg = json.loads((published / "locomotion" / "aggregate.json").read_text())
