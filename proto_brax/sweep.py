@@ -413,9 +413,9 @@ def summarize_runs(rows: list[dict], grid_keys: list[str]) -> list[dict]:
             rec[f"final_{key}"] = summarize([rs[-1][key] for rs in runs])
             rec[f"average_{key}"] = summarize([np.mean([r[key] for r in rs]) for rs in runs])
         rec["final_dev_pi0"] = summarize([rs[-1]["dev_pi0"] for rs in runs])
-        if all("success_rate" in rs[-1] for rs in runs):  # goal tasks: the paper's success and steps to goal
+        if all("success_rate" in rs[-1] for rs in runs):  # goal tasks and Adroit: success rate
             rec["final_success_rate"] = summarize([rs[-1]["success_rate"] for rs in runs])
-        if all("steps_to_goal" in rs[-1] for rs in runs):
+        if all("steps_to_goal" in rs[-1] for rs in runs):  # goal tasks: the paper's steps to the goal (Fig. 5)
             rec["final_steps_to_goal"] = summarize([rs[-1]["steps_to_goal"] for rs in runs])
         if all(initial):  # π₀ at step 0, and the initial drop: the lowest score within the first 10% of the run
             rec["initial_normalized_score"] = summarize([i[0]["normalized_score"] for i in initial])
