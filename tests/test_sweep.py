@@ -204,3 +204,19 @@ def test_reward_transform_resolution():
                                                                                 "reward_shift": 0.0}
     assert sweep.reward_transform(sweep.SweepArgs(env="antmaze-umaze"), None, None) == {"reward_scale": 1.0,
                                                                                         "reward_shift": -1.0}
+
+
+def test_summary_reports_success_where_the_rows_have_it():
+    """Adroit rows carry a success rate (no steps to goal), goal-task rows both, locomotion rows neither: the summary
+    reports exactly what the rows hold, as mean over seeds of the last evaluation."""
+    def rows(extra_by_seed):
+        return [{"seed": s, "tau": 0.005, "step": step, "eval_return": 1.0, "normalized_score": 1.0, "dev_pi0": 0.0,
+                 "diverged": False, **extra} for s, extra in extra_by_seed.items() for step in (100, 200)]
+
+    adroit = sweep.summarize_runs(rows({0: {"success_rate": 0.2}, 1: {"success_rate": 0.6}}), ["tau"])[0]
+    assert adroit["final_success_rate"]["mean"] == pytest.approx(0.4) and "final_steps_to_goal" not in adroit
+    goal = sweep.summarize_runs(rows({0: {"success_rate": 1.0, "steps_to_goal": 300.0},
+                                      1: {"success_rate": 0.5, "steps_to_goal": 500.0}}), ["tau"])[0]
+    assert goal["final_success_rate"]["mean"] == 0.75 and goal["final_steps_to_goal"]["mean"] == 400.0
+    loco = sweep.summarize_runs(rows({0: {}, 1: {}}), ["tau"])[0]
+    assert "final_success_rate" not in loco and "final_steps_to_goal" not in loco
