@@ -37,6 +37,7 @@ import tyro
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from proto_brax.envs import single_thread_xla_flags  # noqa: E402
 from proto_brax.methods import METHODS  # noqa: E402
 
 DATASETS = tuple(f"{env}-{kind}" for env in ("hopper", "walker2d", "halfcheetah", "ant")
@@ -63,6 +64,11 @@ class Args:
     """Working sweeps (resume state): outside the work tree, so that a later checkout on the same machine resumes them
     ($PROTO_BRAX_RUNS, default ~/.cache/proto_brax/runs)."""
     results: Path = ROOT / "benchmarks" / "results" / "locomotion"
+    single_core: bool = False
+    """Each sweep on one CPU device with one XLA thread (``--devices 1``, ``envs.single_thread_xla_flags``): for two
+    runners side by side on a 2-core machine, where two single-threaded processes do more updates per second in total
+    than two sharded ones (FACTS.md) and 5 seeds need no padding run. A started sweep resumes only under the setting
+    it started with (its state's padding follows the device count)."""
 
 
 def sweep_command(dataset: str, method: str, args: Args, resume: bool) -> list[str]:
@@ -77,7 +83,17 @@ def sweep_command(dataset: str, method: str, args: Args, resume: bool) -> list[s
         cmd += [flag, *map(str, values)]
     if METHODS[algo].defaults.get("dataset") != "none":
         cmd += ["--dataset", dataset, "--dataset-size", "1000000"]
+    if args.single_core:
+        cmd += ["--devices", "1"]
     return cmd + (["--resume"] if resume else [])
+
+
+def sweep_env(args: Args) -> dict[str, str]:
+    """The sweep's environment: with ``single_core``, one XLA thread."""
+    env = dict(os.environ)
+    if args.single_core:
+        env["XLA_FLAGS"] = single_thread_xla_flags()
+    return env
 
 
 def missing_bundle(dataset: str, method: str) -> str | None:
@@ -127,12 +143,13 @@ def main(args: Args) -> None:
             if need:
                 print(f"skip {dataset} {method}: no bundle ({need})", flush=True)
                 continue
-            resume = (out / "config.json").exists()
-            cmd = sweep_command(dataset, method, args, resume)
-            print(f"[{time.strftime('%H:%M:%S')}] {' '.join(cmd[1:])}", flush=True)
-            if subprocess.run(cmd, cwd=ROOT).returncode != 0:
-                print(f"FAILED: {dataset} {method}", flush=True)
-                continue
+            if not (out / "summary.json").exists():  # else finished but not published (the runner was stopped)
+                resume = (out / "config.json").exists()
+                cmd = sweep_command(dataset, method, args, resume)
+                print(f"[{time.strftime('%H:%M:%S')}] {' '.join(cmd[1:])}", flush=True)
+                if subprocess.run(cmd, cwd=ROOT, env=sweep_env(args)).returncode != 0:
+                    print(f"FAILED: {dataset} {method}", flush=True)
+                    continue
             publish(dataset, method, args)
             summary = json.loads((out / "summary.json").read_text())
             for point in summary["points"]:

@@ -211,10 +211,15 @@ def mjx_xla_flags(flags: str | None = None) -> str:
     return _with_xla_flags(flags, "--xla_cpu_enable_concurrency_optimized_scheduler=false")
 
 
+def single_thread_xla_flags(flags: str | None = None) -> str:
+    """XLA_FLAGS plus ``SINGLE_THREAD_XLA_FLAGS`` (one process per core). Pure, as mjx_xla_flags."""
+    return _with_xla_flags(flags, *SINGLE_THREAD_XLA_FLAGS)
+
+
 def single_thread_mjx_xla_flags(flags: str | None = None) -> str:
     """``mjx_xla_flags`` plus ``SINGLE_THREAD_XLA_FLAGS``: the setting of the MJX-vs-native MuJoCo speed checks (so a
     shared machine's load hits both sides alike). Pure, as mjx_xla_flags."""
-    return mjx_xla_flags(_with_xla_flags(flags, *SINGLE_THREAD_XLA_FLAGS))
+    return mjx_xla_flags(single_thread_xla_flags(flags))
 
 
 def machine_info() -> dict:

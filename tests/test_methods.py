@@ -421,3 +421,8 @@ def test_locomotion_runner_commands_parse():
     eta = sweep.parse_args(locomotion.sweep_command("hopper-medium", "ablate-eta", args, resume=False)[3:])
     assert tau.algo == eta.algo == "proto-sac" and tau.dataset == "hopper-medium" and not tau.resume
     assert tau.tau == (0.0025, 0.01) and tau.eta == (0.9,) and eta.eta == (0.8, 1.0) and eta.tau == (0.005,)
+    # single_core: one device (5 seeds, no padding run) and one XLA thread for the child
+    one = locomotion.Args(single_core=True)
+    assert sweep.parse_args(locomotion.sweep_command("hopper-medium", "direct", one, resume=False)[3:]).devices == 1
+    assert "--xla_cpu_multi_thread_eigen=false" in locomotion.sweep_env(one)["XLA_FLAGS"]
+    assert sweep.parse_args(locomotion.sweep_command("hopper-medium", "direct", args, resume=False)[3:]).devices is None

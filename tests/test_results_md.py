@@ -126,3 +126,20 @@ def test_locomotion_runner_publishes_a_finished_sweep_reproducibly(tmp_path):
     assert sorted(p.name for p in dst.iterdir()) == ["config.json", "metrics.jsonl.gz", "report", "summary.json"]
     loco.publish("hopper-medium", "direct", args)
     assert (dst / "metrics.jsonl.gz").read_bytes() == first
+
+
+def test_locomotion_runner_publishes_a_finished_unpublished_sweep_without_rerunning(tmp_path, capsys):
+    """A sweep that finished (summary.json in its working dir) while the runner was stopped is published, not rerun."""
+    loco = load_module("locomotion")
+    src = tmp_path / "runs" / "hopper-medium" / "direct"
+    src.mkdir(parents=True)
+    (src / "metrics.jsonl").write_text(json.dumps({"step": 0}) + "\n")
+    (src / "config.json").write_text("{}")
+    summary = {"grid_keys": ["tau"], "points": [{"tau": 0.005, "final_normalized_score": {"mean": 50.0, "std": 1.0}}]}
+    (src / "summary.json").write_text(json.dumps(summary))
+    args = loco.Args(datasets=("hopper-medium",), methods=("direct",), runs=tmp_path / "runs",
+                     results=tmp_path / "results")
+    loco.main(args)  # a rerun would start `python -m proto_brax.sweep` and print its command line first
+    out = capsys.readouterr().out
+    assert "proto_brax.sweep" not in out and "tau 0.005: final normalized 50.0 ± 1.0" in out
+    assert json.loads((tmp_path / "results" / "hopper-medium" / "direct" / "summary.json").read_text()) == summary
