@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from locomotion import ABLATIONS, ETA0, TAU0  # noqa: E402
+from locomotion import ABLATIONS, DATASETS, ETA0, PAPER_METHODS, TAU0  # noqa: E402
 
 from proto_brax.checkpoints import write_json_atomic  # noqa: E402
 from proto_brax.methods import METHODS  # noqa: E402
@@ -255,6 +255,20 @@ def aggregate_curves(table, path: Path) -> dict:
     return curves
 
 
+def coverage(table) -> list[str]:
+    """Which of the planned sweeps (``locomotion.py``'s datasets × the paper's methods) are published."""
+    done = {(d, m) for d, per in table.items() for m in methods_of(per)}
+    planned = [(d, m) for d in DATASETS for m in PAPER_METHODS]
+    missing = {d: [m for m in PAPER_METHODS if (d, m) not in done] for d in DATASETS}
+    full = [d for d in DATASETS if not missing[d]]
+    none = [d for d in DATASETS if len(missing[d]) == len(PAPER_METHODS)]
+    partial = [f"{d} (missing {', '.join(missing[d])})" for d in DATASETS if d not in full + none]
+    return [f"**Coverage:** {sum(p in done for p in planned)} of the {len(planned)} planned sweeps ({len(DATASETS)} "
+            f"datasets × {len(PAPER_METHODS)} methods: {', '.join(PAPER_METHODS)}) are published. Complete: "
+            f"{', '.join(full) or 'none'}. Partial: {'; '.join(partial) or 'none'}. Not started: "
+            f"{', '.join(none) or 'none'}. Every claim below is about the published sweeps only.", ""]
+
+
 def render(args: Args) -> str:
     table = collect(args)
     cost = json.loads(args.cost.read_text()) if args.cost.exists() else None
@@ -270,6 +284,7 @@ def render(args: Args) -> str:
              f"Online budget: {', '.join(f'{b:,}' for b in budgets)} steps per run (the paper: 10⁶), α annealed over "
              "the same fraction of the run; normalized scores use this suite's Brax references "
              "(`proto_brax/envs.py`), so they are not comparable to D4RL numbers.", ""]
+    lines += coverage(table)
     lines += claims(table, cost)
     lines += ["## Aggregate over datasets", "", "![aggregate](results/locomotion/aggregate.png)", "",
               "| method | datasets | runs | final IQM [95% CI] | lowest-in-first-10% IQM [95% CI] |",

@@ -96,6 +96,8 @@ def test_results_page_states_the_claims_with_numbers(published):
     assert "PROTO ends above IQL finetune:** not measured yet" in text
     assert "= 1.10" in text  # (3) 110 / 100
     assert "| proto-sac | 2 | 6 | 81.0 [80.2, 81.8] | 27.0 [" in text  # IQM of 80, 81, 82 twice
+    assert "**Coverage:** 6 of the 84 planned sweeps" in text  # 2 datasets × 3 methods; the ablation is not one
+    assert "Partial: hopper-medium (missing iql, sac-scratch, proto-td3, proto-bc); walker2d-medium (missing" in text
     # the τ ablation: its two values from its sweep, τ₀ from the proto-sac sweep; kept out of the method tables
     assert "| hopper-medium | 0.0025 | 30.0 | 20.0 | 83.5 ± 0.8 | 83.5 [" in text
     assert "| hopper-medium | 0.005 (default) | 30.0 | 27.0 | 81.0 ± 0.8 | 81.0 [" in text
