@@ -62,9 +62,9 @@ def cached_metadata(path: Path) -> dict:
 
 def stale_reason(meta: dict, behavior_root: Path | None = None) -> str | None:
     """Why a cached dataset no longer matches what ``make`` would generate now (a snapshot its kind is made from —
-    medium for medium and medium-replay, expert for expert, both for medium-expert — is not the one the current rule
-    picks: new snapshots, or a changed rule; AntMaze: its controller is not the last ant-goal snapshot), or None when
-    it is current."""
+    medium for medium and medium-replay, expert for expert and cloned, both for medium-expert — is not the one the
+    current rule picks: new snapshots, or a changed rule; AntMaze: its controller is not the last ant-goal snapshot),
+    or None when it is current."""
     if "controller" in meta:  # AntMaze: made with the ant-goal controller's last snapshot of the time
         from proto_brax.data import generate as g
 
@@ -72,7 +72,7 @@ def stale_reason(meta: dict, behavior_root: Path | None = None) -> str | None:
         had = meta["controller"]["step"]
         return None if had == last else (f"it was generated with the {meta['controller']['env']} controller at step "
                                          f"{had}, the last snapshot is step {last}")
-    uses = {"medium": ("medium",), "medium-replay": ("medium",), "expert": ("expert",),
+    uses = {"medium": ("medium",), "medium-replay": ("medium",), "expert": ("expert",), "cloned": ("expert",),
             "medium-expert": ("medium", "expert")}.get(meta.get("kind"), ())
     if not uses or "expert_snapshot" not in meta:
         return None
@@ -121,6 +121,8 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
 
         return make_antmaze_dataset(env_name.removeprefix("antmaze-"), kind, size or g.default_size(env_name), seed,
                                     num_envs, progress=progress)
+    if kind == "cloned":
+        return make_cloned(name, size or g.default_size(env_name), seed, num_envs, behavior_root, progress)
     if kind == "medium-expert":  # D4RL: the concatenation of the medium and expert datasets
         parts = dict(parts or {})
         for sub in ("medium", "expert"):
@@ -152,7 +154,7 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
         raise ValueError(f"size ({size}) must be a multiple of num_envs ({num_envs}).")
     spec = envs.get_spec(env_name)
     env = envs.make_env(env_name)
-    key = jax.random.fold_in(jax.random.PRNGKey(seed), g.KINDS.index(kind))
+    key = jax.random.fold_in(jax.random.PRNGKey(seed), g.KEY_KINDS.index(kind))
     meta = {"name": name, "env": env_name, "backend": spec.default_backend, "kind": kind, "size": size,
             "seed": seed, "num_envs": num_envs, "episode_length": spec.episode_length, "version": __version__}
 
@@ -203,6 +205,66 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     meta["behavior"] = [info for *_, info in policies]
     meta["size"] = total
     meta["returns"] = episode_return_stats(data)
+    return data, meta
+
+
+CLONED_DEMOS = 25  # D4RL's number of human demonstrations per Adroit task
+
+
+def first_episodes(data, n: int):
+    """The first ``n`` episodes of a (env-major) dataset: rows up to the n-th terminal or timeout."""
+    import jax
+
+    ends = np.flatnonzero(np.logical_or(data.terminals > 0, data.timeouts > 0))
+    if len(ends) < n:
+        raise ValueError(f"the dataset holds {len(ends)} episodes, fewer than the {n} asked for.")
+    return jax.tree.map(lambda x: np.asarray(x)[: ends[n - 1] + 1], data)
+
+
+def make_cloned(name: str, size: int, seed: int = 0, num_envs: int = 100, behavior_root: Path | None = None,
+                progress: bool = True, demos: int = CLONED_DEMOS, bc_steps: int = 20_000):
+    """D4RL's Adroit ``cloned`` recipe on the suite's own data: a 50-50 mix of demonstrations and rollouts of a
+    behaviour-cloning policy trained on ``demos`` of them. D4RL's demonstrations are human; here they are the
+    suite's expert (half of the rows: the ``-expert`` dataset at half the size, whose first ``demos`` episodes train
+    the BC policy: maximum likelihood with the tanh-Gaussian actor, ``bc_steps`` steps of batch 256), and the other
+    half are the BC policy's sampled actions."""
+    import jax
+    import jax.numpy as jnp
+
+    from proto_brax import envs
+    from proto_brax.algorithms.insample import OfflineHParams
+    from proto_brax.data import generate as g
+    from proto_brax.data.dataset import content_hash, episode_return_stats
+    from proto_brax.train.offline import PretrainConfig, make_pretrain, run_pretrain
+
+    env_name, _ = g.parse_name(name)
+    if size % (2 * num_envs):
+        raise ValueError(f"size ({size}) must be a multiple of 2 × num_envs ({2 * num_envs}).")
+    expert, emeta = make_dataset(f"{env_name}-expert", size // 2, seed, num_envs, behavior_root, progress)
+    demo = first_episodes(expert, demos)
+    log_every = next(d for d in (10_000, 5_000, 2_000, 1_000, 500, 100, 1) if bc_steps % d == 0)
+    pre = make_pretrain(PretrainConfig(algo="bc", env=env_name, steps=bc_steps, log_every=log_every))
+    state, metrics, bc_returns = run_pretrain(pre, OfflineHParams.create(), [seed], jax.tree.map(jnp.asarray, demo))
+    actor = jax.tree.map(lambda x: x[0], state.actor)
+    env, spec = envs.make_env(env_name), envs.get_spec(env_name)
+    key = jax.random.fold_in(jax.random.PRNGKey(seed), g.KEY_KINDS.index("cloned"))
+    steps = size // 2 // num_envs
+    segment = next(d for d in (1000, 500, 250, 200, 100, 50, 25, 10, 5, 2, 1) if steps % d == 0)
+    cloned = g.rollouts(env, spec.episode_length, g.stochastic_policy(pre.nets), actor, key, num_envs, steps,
+                        segment)
+    data = jax.tree.map(lambda a, b: np.concatenate([a, b]).astype(np.float32), expert, cloned)
+    meta = {**{k: emeta[k] for k in ("env", "backend", "seed", "num_envs", "episode_length", "version",
+                                     "expert_snapshot")},
+            "name": name, "kind": "cloned", "size": size,
+            "behavior": emeta["behavior"] + [{"step": "bc", "demos": demos, "demo_transitions": len(demo.rewards),
+                                              "bc_steps": bc_steps, "params_hash": g.params_hash(actor),
+                                              "bc_mse": float(metrics["mse"][-1][0]),
+                                              "bc_eval_return": float(np.mean(bc_returns)),
+                                              "transitions": size // 2}],
+            "parts": {"expert": content_hash(expert), "cloned": content_hash(cloned)},
+            "note": "D4RL's cloned data mix human demonstrations with a BC policy's rollouts; human demonstrations "
+                    "cannot be recorded here, so the suite's expert policy stands in for the demonstrator.",
+            "returns": episode_return_stats(data)}
     return data, meta
 
 
@@ -411,13 +473,16 @@ def cmd_references(a: References) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from proto_brax.data.generate import dataset_names, parse_name
+
     cmd = tyro.extras.subcommand_cli_from_dict(
         {"make": Make, "info": Info, "list": List, "references": References, "measure": Measure}, args=argv
     )
-    if isinstance(cmd, Make) and cmd.name.startswith("antmaze-"):  # before JAX starts: MJX's CPU scheduler fix
+    if isinstance(cmd, Make) and cmd.name in dataset_names():  # before JAX starts: MJX's CPU scheduler fix
         from proto_brax import envs
 
-        os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
+        if envs.get_spec(parse_name(cmd.name)[0]).default_backend == "mjx":  # AntMaze, Adroit
+            os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
     {Make: cmd_make, Info: cmd_info, List: cmd_list, References: cmd_references, Measure: cmd_measure}[type(cmd)](cmd)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -111,6 +112,32 @@ def test_kinds_are_ordered_and_sized():
     md, _ = datasets.make_dataset("point-medium", **SMALL)
     for f in datasets_fields():  # medium-expert is exactly medium followed by expert (D4RL)
         np.testing.assert_array_equal(getattr(me, f), np.concatenate([getattr(md, f), getattr(ex, f)]))
+
+
+def test_cloned_is_half_expert_half_a_bc_policy_trained_on_its_first_episodes():
+    """D4RL's Adroit cloned recipe on point: the first half is the expert dataset at half the size (its first episodes
+    are the BC demonstrations), the second half the BC policy's own rollouts; deterministic; staleness follows the
+    expert snapshot."""
+    kw = dict(size=2000, num_envs=20, progress=False, demos=5, bc_steps=500)
+    cl, meta = datasets.make_cloned("point-cloned", **kw)
+    ex, _ = datasets.make_dataset("point-expert", size=1000, num_envs=20, progress=False)
+    for f in datasets_fields():
+        np.testing.assert_array_equal(getattr(cl, f)[:1000], getattr(ex, f))
+    bc = meta["behavior"][-1]
+    demo = datasets.first_episodes(ex, 5)
+    assert bc["demos"] == 5 and bc["demo_transitions"] == len(demo.rewards) == 250  # point episodes: 50 steps
+    assert meta["kind"] == "cloned" and meta["size"] == 2000 == cl.rewards.shape[0] and bc["transitions"] == 1000
+    assert meta["parts"]["expert"] == content_hash(ex) and "human demonstrations" in meta["note"]
+    # the BC half is not a copy of the expert half, and the BC policy (500 steps) still reaches the origin
+    assert not np.allclose(cl.actions[1000:], ex.actions)
+    assert episode_returns(jax.tree.map(lambda x: x[1000:], cl)).mean() > 30
+    again, _ = datasets.make_cloned("point-cloned", **kw)
+    assert content_hash(again) == content_hash(cl)
+    assert datasets.stale_reason(meta) is None
+    assert "expert snapshot" in datasets.stale_reason({**meta, "expert_snapshot": {"step": 1}})
+    with pytest.raises(ValueError, match="fewer than the 99"):
+        datasets.first_episodes(ex, 99)
+    assert "pen-cloned" in g.dataset_names() and g.default_size("pen") == 500_000
 
 
 def test_episodes_are_contiguous_and_bounded(medium):

@@ -72,7 +72,8 @@ def flatten_env_major(tr: Transition) -> Transition:
 KINDS = ("random", "medium", "medium-replay", "expert", "medium-expert")
 LOCOMOTION = ("hopper", "walker2d", "halfcheetah", "ant")
 DATASET_ENVS = LOCOMOTION + ("point",)
-DEFAULT_SIZE = {"point": 100_000}  # every other env: 1_000_000 transitions (D4RL's size)
+# D4RL's sizes: 10⁶ transitions, except pen's expert/cloned (5000 episodes of 100 steps); point is the test task.
+DEFAULT_SIZE = {"point": 100_000, "pen": 500_000}
 BEHAVIOR_ROOT = Path(__file__).resolve().parents[2] / "checkpoints" / "behavior"
 
 
@@ -83,15 +84,23 @@ def default_size(env: str) -> int:
 # AntMaze (proto_brax.data.antmaze_data): D4RL's play / diverse navigation data in each maze.
 ANTMAZE_ENVS = ("antmaze-umaze", "antmaze-medium", "antmaze-large")
 ANTMAZE_KINDS = ("play", "diverse")
+# Adroit: D4RL's expert and cloned data, made from the suite's own expert policy (D4RL's human demonstrations cannot
+# be recorded here: ``--dataset D4RL/pen/human-v2`` loads them from a user's Minari cache). point-cloned is the same
+# recipe on the test task.
+ADROIT_ENVS = ("pen", "door", "hammer")
+ADROIT_KINDS = ("expert", "cloned")
+FAMILIES = ((DATASET_ENVS, KINDS), (ANTMAZE_ENVS, ANTMAZE_KINDS), (ADROIT_ENVS, ADROIT_KINDS),
+            (("point",), ("cloned",)))
+# Each kind's index folds into the generation key; new kinds are appended so existing datasets keep their keys.
+KEY_KINDS = KINDS + ("cloned",)
 
 
 def dataset_names() -> list[str]:
-    return ([f"{env}-{kind}" for env in DATASET_ENVS for kind in KINDS]
-            + [f"{env}-{kind}" for env in ANTMAZE_ENVS for kind in ANTMAZE_KINDS])
+    return [f"{env}-{kind}" for envs_, kinds in FAMILIES for env in envs_ for kind in kinds]
 
 
 def parse_name(name: str) -> tuple[str, str]:
-    for envs_, kinds in ((DATASET_ENVS, KINDS), (ANTMAZE_ENVS, ANTMAZE_KINDS)):
+    for envs_, kinds in FAMILIES:
         for env in envs_:
             for kind in kinds:
                 if name == f"{env}-{kind}":
