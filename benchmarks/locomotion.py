@@ -14,6 +14,9 @@ running it again continues where it stopped; a finished sweep's ``summary.json``
 ``metrics.jsonl`` are copied to ``benchmarks/results/locomotion/DATASET/METHOD/``. Methods whose bundle kind is not
 committed for a dataset are skipped with the command that makes the bundle.
 
+A method that trains on no dataset (``sac-scratch``) gives the same runs on every dataset of an env: it is swept once
+per env, and its published sweep is copied to the env's other datasets (``results_md.py`` counts it once).
+
 The ablations (the paper's appendix: τ ∈ {0.5, 1, 2} × τ₀ and η ∈ {0.8, 0.9, 1.0}) are the pseudo-methods
 ``ablate-tau`` and ``ablate-eta``, run on ``--ablation-datasets`` only: one PROTO-SAC sweep each over the two
 non-default values × the seeds in one vmapped program; the default value is the ``proto-sac`` sweep itself.
@@ -122,6 +125,16 @@ def publish(dataset: str, method: str, args: Args) -> None:
     (dst / ".summary.json.tmp").replace(dst / "summary.json")
 
 
+def shared_sweep(dataset: str, method: str, args: Args) -> Path | None:
+    """A published sweep of a dataset-free method on another dataset of the same env, which this dataset shares."""
+    if METHODS.get(method) is None or METHODS[method].defaults.get("dataset") != "none":
+        return None
+    env = dataset.split("-")[0]
+    found = [args.results / d / method for d in DATASETS
+             if d != dataset and d.split("-")[0] == env and (args.results / d / method / "summary.json").exists()]
+    return found[0] if found else None
+
+
 def main(args: Args) -> None:
     unknown = [m for m in args.methods if m not in METHODS and m not in ABLATIONS]
     if unknown:
@@ -142,6 +155,12 @@ def main(args: Args) -> None:
                 continue
             if need:
                 print(f"skip {dataset} {method}: no bundle ({need})", flush=True)
+                continue
+            if (src := shared_sweep(dataset, method, args)) is not None:
+                dst = args.results / dataset / method
+                shutil.copytree(src, dst.with_name(f".{method}.tmp"), dirs_exist_ok=True)
+                dst.with_name(f".{method}.tmp").replace(dst)
+                print(f"{dataset} {method}: the same runs as {src.parent.name} (trains on no dataset)", flush=True)
                 continue
             if not (out / "summary.json").exists():  # else finished but not published (the runner was stopped)
                 resume = (out / "config.json").exists()

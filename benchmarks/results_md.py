@@ -17,6 +17,7 @@ bootstrap CIs over all (dataset, seed) runs of a method (:func:`proto_brax.stats
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import sys
@@ -84,8 +85,22 @@ def collect(args: Args) -> dict[str, dict[str, dict]]:
         sweep = load_sweep(d)
         table.setdefault(dataset, {})[method] = {
             "runs": run_scores(sweep), "summary": sweep.summary, "config": sweep.config,
-            "offline": offline_score(args.bundles, dataset, method)}
+            "offline": offline_score(args.bundles, dataset, method),
+            # a dataset-free method's sweep is copied to each dataset of its env: aggregates count each sweep once
+            # (a sweep's config names its dataset and its output directory: distinct sweeps never share it)
+            "sweep_id": hashlib.sha256(json.dumps([sweep.config, sweep.rows], sort_keys=True).encode()).hexdigest()}
     return table
+
+
+def method_runs(table, m: str) -> tuple[list[str], list[dict]]:
+    """(datasets, runs) of method ``m`` over the datasets, each distinct sweep once (shared copies dropped)."""
+    seen, datasets, runs = set(), [], []
+    for d, per in table.items():
+        if m in per and per[m]["sweep_id"] not in seen:
+            seen.add(per[m]["sweep_id"])
+            datasets.append(d)
+            runs += per[m]["runs"]
+    return datasets, runs
 
 
 def fmt(x: float, nd: int = 1) -> str:
@@ -231,7 +246,7 @@ def aggregate_curves(table, path: Path) -> dict:
 
     curves = {}
     for m in methods_in(table):
-        runs = [r for per in table.values() if m in per for r in per[m]["runs"]]
+        runs = method_runs(table, m)[1]
         n = min(len(r["curve"]) for r in runs)
         stats = [ci([r["curve"][k] for r in runs]) for k in range(n)]
         frac = [(k + 1) / n for k in range(n)]
@@ -287,11 +302,12 @@ def render(args: Args) -> str:
     lines += coverage(table)
     lines += claims(table, cost)
     lines += ["## Aggregate over datasets", "", "![aggregate](results/locomotion/aggregate.png)", "",
+              "Each distinct sweep counts once: SAC from scratch trains on no dataset, so its one sweep per env stands "
+              "in the table of every dataset of that env.", "",
               "| method | datasets | runs | final IQM [95% CI] | lowest-in-first-10% IQM [95% CI] |",
               "|---|---|---|---|---|"]
     for m in methods_in(table):
-        ds = [d for d, per in table.items() if m in per]
-        runs = [r for d in ds for r in table[d][m]["runs"]]
+        ds, runs = method_runs(table, m)
         lines.append(f"| {m} | {len(ds)} | {len(runs)} | {ci_str([r['final'] for r in runs])} | "
                      f"{ci_str([r['drop'] for r in runs])} |")
     lines += ["", "## Per dataset", ""]

@@ -31,7 +31,8 @@ def curve(method: str, seed: int, tau: float = 0.005) -> list[float]:
     return {"proto-sac": [30.0, 28.0 - seed, 50.0, 80.0 + seed],
             "direct": [30.0, 5.0 + seed, 40.0, 70.0 + seed],
             "frozen": [30.0, 31.0, 40.0, 60.0 + seed],
-            "ablate-tau": [30.0, 20.0, 50.0, 80.0 + seed + 1000 * tau]}[method]
+            "ablate-tau": [30.0, 20.0, 50.0, 80.0 + seed + 1000 * tau],
+            "sac-scratch": [1.0, 2.0, 5.0, 10.0 + seed]}[method]
 
 
 def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,)) -> Path:
@@ -47,7 +48,9 @@ def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,
             rows.append({**base, "chunk": c, "step": step, "eval_return": 10 * score, "normalized_score": score})
     with gzip.open(d / "metrics.jsonl.gz", "wt") as f:
         f.write("\n".join(json.dumps(r) for r in rows) + "\n")
-    (d / "config.json").write_text(json.dumps({"sweep": {"env": dataset.split("-")[0], "algo": method}}))
+    used = "none" if method == "sac-scratch" else dataset  # as the sweeps' configs: the dataset trained on
+    (d / "config.json").write_text(json.dumps({"sweep": {"env": dataset.split("-")[0], "algo": method,
+                                                         "dataset": used}}))
     (d / "summary.json").write_text(json.dumps({"env": dataset.split("-")[0], "steps": STEPS[-1], "points": []}))
     return d
 
@@ -145,3 +148,26 @@ def test_locomotion_runner_publishes_a_finished_unpublished_sweep_without_rerunn
     out = capsys.readouterr().out
     assert "proto_brax.sweep" not in out and "tau 0.005: final normalized 50.0 ± 1.0" in out
     assert json.loads((tmp_path / "results" / "hopper-medium" / "direct" / "summary.json").read_text()) == summary
+
+
+def test_a_dataset_free_sweep_is_shared_by_its_envs_datasets_and_counted_once(tmp_path, capsys):
+    """sac-scratch trains on no dataset: the runner copies hopper-medium's published sweep to hopper-random instead of
+    rerunning it (walker2d's is not hopper's), and the aggregate counts its runs once."""
+    loco, mod = load_module("locomotion"), load_module()
+    results = tmp_path / "locomotion"
+    publish(results, "hopper-medium", "proto-sac")
+    publish(results, "hopper-medium", "sac-scratch")
+    publish(results, "hopper-random", "proto-sac")
+    args = loco.Args(datasets=("hopper-random",), methods=("sac-scratch",), runs=tmp_path / "runs", results=results)
+    assert loco.shared_sweep("walker2d-medium", "sac-scratch", args) is None
+    assert loco.shared_sweep("hopper-random", "proto-sac", args) is None  # trains on its dataset: never shared
+    loco.main(args)
+    assert "the same runs as hopper-medium" in capsys.readouterr().out
+    copy = results / "hopper-random" / "sac-scratch"
+    assert (copy / "metrics.jsonl.gz").read_bytes() == (results / "hopper-medium" / "sac-scratch" /
+                                                        "metrics.jsonl.gz").read_bytes()
+    out = tmp_path / "RESULTS.md"
+    mod.main(mod.Args(results=results, cost=tmp_path / "none.json", bundles=tmp_path / "none", out=out))
+    text = out.read_text()
+    assert "| sac-scratch | 1 | 3 | 11.0 [" in text and "| proto-sac | 2 | 6 |" in text
+    assert text.count("| sac-scratch | – | 30.0 | 2.0 | 11.0 ± 0.8 |") == 2  # one row in each hopper table
