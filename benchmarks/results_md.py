@@ -140,7 +140,10 @@ def methods_in(table) -> list[str]:
 
 
 def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
+    methods = " ".join(m for m in methods_of(per))
     lines = [f"### {dataset}", "",
+             f"`python benchmarks/locomotion.py run --datasets {dataset} --methods {methods}`, then "
+             "`python benchmarks/results_md.py`.", "",
              "| method | offline | initial (π₀) | lowest in first 10% | final mean ± std | final IQM [95% CI] "
              "| seeds |",
              "|---|---|---|---|---|---|---|"]
@@ -301,7 +304,9 @@ def render(args: Args) -> str:
              "(`proto_brax/envs.py`), so they are not comparable to D4RL numbers.", ""]
     lines += coverage(table)
     lines += claims(table, cost)
-    lines += ["## Aggregate over datasets", "", "![aggregate](results/locomotion/aggregate.png)", "",
+    lines += ["## Aggregate over datasets", "", "`python benchmarks/results_md.py` over every published sweep "
+              "(`benchmarks/results/locomotion/aggregate.json` holds the curves).", "",
+              "![aggregate](results/locomotion/aggregate.png)", "",
               "Each distinct sweep counts once: SAC from scratch trains on no dataset, so its one sweep per env stands "
               "in the table of every dataset of that env.", "",
               "| method | datasets | runs | final IQM [95% CI] | lowest-in-first-10% IQM [95% CI] |",
