@@ -308,7 +308,8 @@ def render(args: Args) -> str:
               "(`benchmarks/results/locomotion/aggregate.json` holds the curves).", "",
               "![aggregate](results/locomotion/aggregate.png)", "",
               "Each distinct sweep counts once: SAC from scratch trains on no dataset, so its one sweep per env stands "
-              "in the table of every dataset of that env.", "",
+              "in the table of every dataset of that env. Until every sweep is published the rows cover different "
+              "datasets (column 2): compare methods in the claims above (which pair datasets) or per dataset.", "",
               "| method | datasets | runs | final IQM [95% CI] | lowest-in-first-10% IQM [95% CI] |",
               "|---|---|---|---|---|"]
     for m in methods_in(table):
