@@ -241,7 +241,7 @@ def cost_table(cost: dict | None) -> list[str]:
 
 
 def aggregate_curves(table, path: Path) -> dict:
-    """IQM [95% CI] over all (dataset, seed) runs per method at each evaluation index; one PNG."""
+    """IQM [95% CI] over all (dataset, seed) runs per method at step 0 (π₀) and each evaluation index; one PNG."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -251,8 +251,11 @@ def aggregate_curves(table, path: Path) -> dict:
     for m in methods_in(table):
         runs = method_runs(table, m)[1]
         n = min(len(r["curve"]) for r in runs)
-        stats = [ci([r["curve"][k] for r in runs]) for k in range(n)]
-        frac = [(k + 1) / n for k in range(n)]
+        # from π₀'s step-0 score (where every run has one), so that the initial drop shows
+        points = [(0.0, [r["initial"] for r in runs])] if all(math.isfinite(r["initial"]) for r in runs) else []
+        points += [((k + 1) / n, [r["curve"][k] for r in runs]) for k in range(n)]
+        stats = [ci(v) for _, v in points]
+        frac = [f for f, _ in points]
         curves[m] = {"fraction": frac, "iqm": [s[0] for s in stats], "low": [s[1] for s in stats],
                      "high": [s[2] for s in stats], "n_runs": len(runs)}
     fig, ax = plt.subplots(figsize=(7, 4.5))

@@ -110,6 +110,7 @@ def test_results_page_states_the_claims_with_numbers(published):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     agg = json.loads((published / "locomotion" / "aggregate.json").read_text())
     assert agg["frozen"]["iqm"][-1] == pytest.approx(61.0) and agg["direct"]["n_runs"] == 6
+    assert agg["direct"]["fraction"][:2] == [0.0, 0.25] and agg["direct"]["iqm"][0] == 30.0  # from π₀ at step 0
 
 
 def test_locomotion_runner_publishes_a_finished_sweep_reproducibly(tmp_path):
