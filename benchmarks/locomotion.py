@@ -147,7 +147,9 @@ def main(args: Args) -> None:
             done = (args.results / dataset / method / "summary.json").exists()
             need = missing_bundle(dataset, method)
             if args.action == "status":
+                shared = None if done else shared_sweep(dataset, method, args)
                 state = "done" if done else ("needs bundle: " + need if need else
+                                             f"shared: copies {shared.parent.name}'s on run" if shared else
                                              ("started" if out.exists() else "pending"))
                 print(f"{dataset:28s} {method:12s} {state}")
                 continue
