@@ -159,9 +159,11 @@ def main(args: Args) -> None:
                 print(f"skip {dataset} {method}: no bundle ({need})", flush=True)
                 continue
             if (src := shared_sweep(dataset, method, args)) is not None:
-                dst = args.results / dataset / method
-                shutil.copytree(src, dst.with_name(f".{method}.tmp"), dirs_exist_ok=True)
-                dst.with_name(f".{method}.tmp").replace(dst)
+                dst, tmp = args.results / dataset / method, args.results / dataset / f".{method}.tmp"
+                shutil.rmtree(tmp, ignore_errors=True)
+                shutil.copytree(src, tmp)
+                shutil.rmtree(dst, ignore_errors=True)  # an unfinished publish (no summary.json) of its own
+                tmp.replace(dst)
                 print(f"{dataset} {method}: the same runs as {src.parent.name} (trains on no dataset)", flush=True)
                 continue
             if not (out / "summary.json").exists():  # else finished but not published (the runner was stopped)

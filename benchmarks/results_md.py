@@ -148,15 +148,21 @@ def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
              "| seeds |",
              "|---|---|---|---|---|---|---|"]
     for m in methods_of(per):
-        runs = per[m]["runs"]
-        fin = [r["final"] for r in runs]
-        finite = [v for v in fin if math.isfinite(v)]
-        bad = f" ({len(fin) - len(finite)} diverged)" if len(finite) < len(fin) else ""
-        lines.append(f"| {m} | {fmt(per[m]['offline'])} | {fmt(np.nanmean([r['initial'] for r in runs]))} | "
-                     f"{fmt(np.nanmean([r['drop'] for r in runs]))} | "
-                     f"{fmt(np.mean(finite)) if finite else '–'} ± {fmt(np.std(finite)) if finite else '–'} | "
-                     f"{ci_str(fin)} | {len(runs)}{bad} |")
+        lines.append(f"| {m} | {fmt(per[m]['offline'])} | {score_cells(per[m]['runs'])} |")
     return lines + [""]
+
+
+def score_cells(runs: list[dict]) -> str:
+    """The table cells initial | lowest in first 10% | final mean ± std | final IQM [95% CI] | seeds (over runs; a
+    diverged run's non-finite final is left out of the mean and counted)."""
+    if not runs:
+        return "– | – | – | – | 0"
+    fin = [r["final"] for r in runs]
+    finite = [v for v in fin if math.isfinite(v)]
+    bad = f" ({len(fin) - len(finite)} diverged)" if len(finite) < len(fin) else ""
+    return (f"{fmt(np.nanmean([r['initial'] for r in runs]))} | {fmt(np.nanmean([r['drop'] for r in runs]))} | "
+            f"{fmt(np.mean(finite)) if finite else '–'} ± {fmt(np.std(finite)) if finite else '–'} | "
+            f"{ci_str(fin)} | {len(runs)}{bad}")
 
 
 def claims(table, cost: dict | None) -> list[str]:
@@ -214,11 +220,7 @@ def ablation_tables(table) -> list[str]:
             runs = table[d][ablation]["runs"] + table[d].get("proto-sac", {}).get("runs", [])
             for v in values:
                 rs = [r for r in runs if math.isclose(r["point"][axis], v, rel_tol=1e-9)]
-                fin = [r["final"] for r in rs]
-                cells = (f"{fmt(np.nanmean([r['initial'] for r in rs]))} | "
-                         f"{fmt(np.nanmean([r['drop'] for r in rs]))} | {fmt(np.nanmean(fin))} ± "
-                         f"{fmt(np.nanstd(fin))} | {ci_str(fin)}") if rs else "– | – | – | –"
-                rows.append(f"| {d} | {v:g}{' (default)' if v == default else ''} | {cells} | {len(rs)} |")
+                rows.append(f"| {d} | {v:g}{' (default)' if v == default else ''} | {score_cells(rs)} |")
         scale = f" = {{{', '.join(f'{v / TAU0:g}' for v in values)}}} × τ₀" if axis == 0 else ""
         out += [f"### {name} ∈ {{{', '.join(f'{v:g}' for v in values)}}}{scale}", "",
                 f"`python benchmarks/locomotion.py run --methods proto-sac {ablation}`: PROTO-SAC with "
