@@ -84,7 +84,7 @@ def sweep_command(dataset: str, method: str, args: Args, resume: bool) -> list[s
     if method in ABLATIONS:
         flag, values = ABLATIONS[method]
         cmd += [flag, *map(str, values)]
-    if METHODS[algo].defaults.get("dataset") != "none":
+    if METHODS[algo].uses_dataset:
         cmd += ["--dataset", dataset, "--dataset-size", "1000000"]
     if args.single_core:
         cmd += ["--devices", "1"]
@@ -127,7 +127,7 @@ def publish(dataset: str, method: str, args: Args) -> None:
 
 def shared_sweep(dataset: str, method: str, args: Args) -> Path | None:
     """A published sweep of a dataset-free method on another dataset of the same env, which this dataset shares."""
-    if METHODS.get(method) is None or METHODS[method].defaults.get("dataset") != "none":
+    if method not in METHODS or METHODS[method].uses_dataset:
         return None
     env = dataset.split("-")[0]
     found = [args.results / d / method for d in DATASETS

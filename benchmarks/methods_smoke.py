@@ -47,7 +47,7 @@ def command(name: str, args: Args) -> list[str]:
            "--learning-starts", "1000",  # scratch methods default to 5000: every method must update in the smoke
            "--out", str(args.runs / name)]
     cmd += ["--eta", "0.9"] + ([] if "tau" in m.defaults else ["--tau", "0.005"])  # one grid point: the paper's
-    if m.defaults.get("dataset") != "none":
+    if m.uses_dataset:
         cmd += ["--dataset", args.dataset]
     if m.bundles:
         kind = m.bundles[0]

@@ -27,6 +27,12 @@ class Method:
     defaults: dict[str, Any] = dataclasses.field(default_factory=dict)  # SweepArgs fields
     hp: dict[str, float] = dataclasses.field(default_factory=dict)  # HParams under the user's --hp
 
+    @property
+    def uses_dataset(self) -> bool:
+        """False for the methods that train on online data only (SAC/TD3 from scratch): any dataset gives the same
+        runs."""
+        return self.defaults.get("dataset") != "none"
+
 
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("proto-sac", "sac", "PROTO with SAC (paper Eq. 3-4): KL to the Polyak-averaged π̄, α annealed linearly; "
