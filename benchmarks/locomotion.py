@@ -41,12 +41,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from proto_brax.envs import single_thread_xla_flags  # noqa: E402
-from proto_brax.methods import METHODS  # noqa: E402
+from proto_brax.methods import METHODS, Method  # noqa: E402
+from proto_brax.sweep import PRESETS  # noqa: E402
 
 DATASETS = tuple(f"{env}-{kind}" for env in ("hopper", "walker2d", "halfcheetah", "ant")
                  for kind in ("medium", "medium-replay", "random"))
 PAPER_METHODS = ("proto-sac", "frozen", "direct", "iql", "sac-scratch", "proto-td3", "proto-bc")
-TAU0, ETA0 = 5e-3, 0.9  # paper-mujoco-100k's τ and η: the ablations' middle values (the proto-sac sweeps)
+PRESET = "paper-mujoco-100k"
+TAU0, ETA0 = PRESETS[PRESET][1]["tau"][0], PRESETS[PRESET][1]["eta"][0]  # the ablations' middle values (proto-sac)
 # Ablation -> the sweep flag and its two non-default values (0.5 and 2 × τ₀; η 0.8 and 1.0).
 ABLATIONS = {"ablate-tau": ("--tau", (0.5 * TAU0, 2 * TAU0)), "ablate-eta": ("--eta", (0.8, 1.0))}
 
@@ -74,17 +76,22 @@ class Args:
     it started with (its state's padding follows the device count)."""
 
 
+def method_of(name: str) -> Method:
+    """The sweep method a runner method name stands for (an ablation is a PROTO-SAC sweep)."""
+    return METHODS["proto-sac" if name in ABLATIONS else name]
+
+
 def sweep_command(dataset: str, method: str, args: Args, resume: bool) -> list[str]:
     env = dataset.split("-")[0]
-    algo = "proto-sac" if method in ABLATIONS else method
-    cmd = [sys.executable, "-m", "proto_brax.sweep", "--preset", "paper-mujoco-100k", "--algo", algo,
+    m = method_of(method)
+    cmd = [sys.executable, "-m", "proto_brax.sweep", "--preset", PRESET, "--algo", m.name,
            "--env", env, "--seeds", *map(str, args.seeds), "--steps", str(args.steps),
            "--eval-every", str(args.eval_every), "--anneal-horizon", str(float(args.steps)),
            "--out", str(args.runs / dataset / method)]
     if method in ABLATIONS:
         flag, values = ABLATIONS[method]
         cmd += [flag, *map(str, values)]
-    if METHODS[algo].uses_dataset:
+    if m.uses_dataset:
         cmd += ["--dataset", dataset, "--dataset-size", "1000000"]
     if args.single_core:
         cmd += ["--devices", "1"]
@@ -100,7 +107,7 @@ def sweep_env(args: Args) -> dict[str, str]:
 
 
 def missing_bundle(dataset: str, method: str) -> str | None:
-    m = METHODS["proto-sac" if method in ABLATIONS else method]
+    m = method_of(method)
     if not m.bundles:
         return None
     kind = m.bundles[0]

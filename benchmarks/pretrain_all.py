@@ -28,9 +28,9 @@ import tyro
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from proto_brax.envs import SINGLE_THREAD_XLA_FLAGS  # noqa: E402
+from proto_brax.envs import single_thread_xla_flags  # noqa: E402
 
-SINGLE_THREAD = " ".join(SINGLE_THREAD_XLA_FLAGS)  # the children's whole XLA_FLAGS
+SINGLE_THREAD = single_thread_xla_flags("")  # the children's whole XLA_FLAGS
 
 
 @dataclasses.dataclass

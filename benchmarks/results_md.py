@@ -30,10 +30,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from locomotion import ABLATIONS, DATASETS, ETA0, PAPER_METHODS, TAU0  # noqa: E402
+from locomotion import ABLATIONS, DATASETS, ETA0, PAPER_METHODS, TAU0, method_of  # noqa: E402
 
 from proto_brax.checkpoints import write_json_atomic  # noqa: E402
-from proto_brax.methods import METHODS  # noqa: E402
 from proto_brax.report import Sweep, load_sweep  # noqa: E402
 from proto_brax.stats import iqm_ci  # noqa: E402
 from proto_brax.sweep import lowest_early_scores  # noqa: E402
@@ -67,7 +66,7 @@ def run_scores(sweep: Sweep) -> list[dict]:
 
 
 def offline_score(bundles: Path, dataset: str, method: str) -> float:
-    kinds = METHODS["proto-sac" if method in ABLATIONS else method].bundles
+    kinds = method_of(method).bundles
     if not kinds:
         return math.nan
     meta = bundles / dataset / kinds[0] / "metadata.json"
