@@ -154,7 +154,7 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
         raise ValueError(f"size ({size}) must be a multiple of num_envs ({num_envs}).")
     spec = envs.get_spec(env_name)
     env = envs.make_env(env_name)
-    key = jax.random.fold_in(jax.random.PRNGKey(seed), g.KEY_KINDS.index(kind))
+    key = g.dataset_key(seed, kind)
     meta = {"name": name, "env": env_name, "backend": spec.default_backend, "kind": kind, "size": size,
             "seed": seed, "num_envs": num_envs, "episode_length": spec.episode_length, "version": __version__}
 
@@ -195,9 +195,8 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     parts = []
     bar = tqdm(total=total, unit="tr", desc=name, disable=not progress, dynamic_ncols=True)
     for i, ((_, policy, params, info), steps) in enumerate(zip(policies, shares)):
-        segment = next(d for d in (1000, 500, 250, 200, 100, 50, 25, 10, 5, 2, 1) if steps % d == 0)
         part = g.rollouts(env, spec.episode_length, policy, params, jax.random.fold_in(key, i), num_envs, steps,
-                          segment, bar)
+                          g.segment_for(steps), bar)
         parts.append(part)
         info["transitions"] = steps * num_envs
     bar.close()
@@ -212,10 +211,13 @@ CLONED_DEMOS = 25  # D4RL's number of human demonstrations per Adroit task
 
 
 def first_episodes(data, n: int):
-    """The first ``n`` episodes of a (env-major) dataset: rows up to the n-th terminal or timeout."""
+    """The first ``n`` episodes of a (env-major) dataset: rows up to the n-th episode end
+    (:func:`proto_brax.data.dataset.episode_ends`)."""
     import jax
 
-    ends = np.flatnonzero(np.logical_or(data.terminals > 0, data.timeouts > 0))
+    from proto_brax.data.dataset import episode_ends
+
+    ends = np.flatnonzero(episode_ends(data))
     if len(ends) < n:
         raise ValueError(f"the dataset holds {len(ends)} episodes, fewer than the {n} asked for.")
     return jax.tree.map(lambda x: np.asarray(x)[: ends[n - 1] + 1], data)
@@ -247,11 +249,9 @@ def make_cloned(name: str, size: int, seed: int = 0, num_envs: int = 100, behavi
     state, metrics, bc_returns = run_pretrain(pre, OfflineHParams.create(), [seed], jax.tree.map(jnp.asarray, demo))
     actor = jax.tree.map(lambda x: x[0], state.actor)
     env, spec = envs.make_env(env_name), envs.get_spec(env_name)
-    key = jax.random.fold_in(jax.random.PRNGKey(seed), g.KEY_KINDS.index("cloned"))
     steps = size // 2 // num_envs
-    segment = next(d for d in (1000, 500, 250, 200, 100, 50, 25, 10, 5, 2, 1) if steps % d == 0)
-    cloned = g.rollouts(env, spec.episode_length, g.stochastic_policy(pre.nets), actor, key, num_envs, steps,
-                        segment)
+    cloned = g.rollouts(env, spec.episode_length, g.stochastic_policy(pre.nets), actor, g.dataset_key(seed, "cloned"),
+                        num_envs, steps, g.segment_for(steps))
     data = jax.tree.map(lambda a, b: np.concatenate([a, b]).astype(np.float32), expert, cloned)
     meta = {**{k: emeta[k] for k in ("env", "backend", "seed", "num_envs", "episode_length", "version",
                                      "expert_snapshot")},

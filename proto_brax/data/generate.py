@@ -95,6 +95,17 @@ FAMILIES = ((DATASET_ENVS, KINDS), (ANTMAZE_ENVS, ANTMAZE_KINDS), (ADROIT_ENVS, 
 KEY_KINDS = KINDS + ("cloned",)
 
 
+def dataset_key(seed: int, kind: str) -> jax.Array:
+    """The generation key of a (seed, kind) dataset: its rollouts fold further indices into it."""
+    return jax.random.fold_in(jax.random.PRNGKey(seed), KEY_KINDS.index(kind))
+
+
+def segment_for(steps: int) -> int:
+    """The largest of the usual segment lengths (≤ 1000 steps per env) that divides ``steps``: one compiled
+    :func:`rollouts` segment per progress-bar update."""
+    return next(d for d in (1000, 500, 250, 200, 100, 50, 25, 10, 5, 2, 1) if steps % d == 0)
+
+
 def dataset_names() -> list[str]:
     return [f"{env}-{kind}" for envs_, kinds in FAMILIES for env in envs_ for kind in kinds]
 
