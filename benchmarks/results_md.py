@@ -139,17 +139,42 @@ def methods_in(table) -> list[str]:
     return ordered(m for per in table.values() for m in methods_of(per))
 
 
+def buffer_data(config: dict) -> str:
+    """Whether a sweep's dataset held the rows its bundle was pretrained on: "bundle's", "regenerated" (the same
+    registered dataset with another content hash) or "–" (no bundle, or no dataset)."""
+    want = (config.get("checkpoint_metadata") or {}).get("dataset_content_hash")
+    have = (config.get("dataset_metadata") or {}).get("content_hash")
+    if want is None or have is None:
+        return "–"
+    return "bundle's" if want == have else "regenerated"
+
+
 def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
     methods = " ".join(m for m in methods_of(per))
     lines = [f"### {dataset}", "",
              f"`python benchmarks/locomotion.py run --datasets {dataset} --methods {methods}`, then "
              "`python benchmarks/results_md.py`.", "",
              "| method | offline | initial (π₀) | lowest in first 10% | final mean ± std | final IQM [95% CI] "
-             "| seeds |",
-             "|---|---|---|---|---|---|---|"]
+             "| seeds | buffer data |",
+             "|---|---|---|---|---|---|---|---|"]
     for m in methods_of(per):
-        lines.append(f"| {m} | {fmt(per[m]['offline'])} | {score_cells(per[m]['runs'])} |")
+        lines.append(f"| {m} | {fmt(per[m]['offline'])} | {score_cells(per[m]['runs'])} | "
+                     f"{buffer_data(per[m]['config'])} |")
     return lines + [""]
+
+
+def provenance(table) -> list[str]:
+    """Which published sweeps finetuned with a regenerated copy of their bundle's dataset in the buffer."""
+    regen = [f"{d}/{m}" for d, per in sorted(table.items()) for m in methods_of(per)
+             if buffer_data(per[m]["config"]) == "regenerated"]
+    if not regen:
+        return []
+    return [f"**Buffer data:** {len(regen)} sweep(s) put a regenerated copy of their bundle's dataset in the buffer "
+            f"(column *buffer data*): {', '.join(regen)}. Same registered dataset, generator and behaviour "
+            "policies, other rows. Those bundles were pretrained on caches built before `python -m "
+            "proto_brax.datasets make` pinned one XLA thread (`datasets.generation_xla_flags`): multi-threaded XLA "
+            "rounds differently, which changes hopper's and walker2d's episodes, and the pinned generation does not "
+            "reproduce those caches. The bundle (π₀, critic, reward scale) is the committed one either way.", ""]
 
 
 def score_cells(runs: list[dict]) -> str:
@@ -314,6 +339,7 @@ def render(args: Args) -> str:
              "the same fraction of the run; normalized scores use this suite's Brax references "
              "(`proto_brax/envs.py`), so they are not comparable to D4RL numbers.", ""]
     lines += coverage(table)
+    lines += provenance(table)
     lines += claims(table, cost)
     lines += ["## Aggregate over datasets", "", "`python benchmarks/results_md.py` over every published sweep "
               "(`benchmarks/results/locomotion/aggregate.json` holds the curves).", "",

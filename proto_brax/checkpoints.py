@@ -268,6 +268,37 @@ def validate_bundle(meta: dict[str, Any], env: str, obs_size: int, act_size: int
         raise CheckpointError("The checkpoint does not match the finetuning configuration: " + "; ".join(problems))
 
 
+def dataset_label(name_or_path: str) -> str:
+    """A dataset's name as a bundle records it: a registered name, or a file's stem."""
+    return Path(name_or_path).stem if Path(name_or_path).suffix else name_or_path
+
+
+def validate_bundle_dataset(meta: dict[str, Any], dataset: str) -> None:
+    """Refuse to finetune a bundle with another dataset in the buffer than it was pretrained on, naming the fix."""
+    ours, theirs = dataset_label(dataset), meta.get("dataset")
+    if theirs is not None and theirs != ours:
+        raise CheckpointError(f"The checkpoint was pretrained on dataset {theirs!r}, the finetune reads {ours!r}: pass "
+                              f"--dataset {theirs}, or a bundle of {ours} (python -m proto_brax.pretrain --dataset "
+                              f"{ours} ...).")
+
+
+def bundle_dataset_record(meta: dict[str, Any], dataset_meta: dict[str, Any] | None) -> dict[str, Any]:
+    """Whether the finetune's dataset holds the very rows the bundle was pretrained on (content hashes), for the
+    sweep's config.json; a difference is announced, not refused.
+
+    The same registered dataset can hold other rows when it was regenerated under other XLA threading
+    (``datasets.generation_xla_flags``: on hopper and walker2d, whose episodes end on falls, the rounding changes the
+    episodes): the buffer then holds other episodes of the same generator and behaviour policies."""
+    want, have = meta.get("dataset_content_hash"), (dataset_meta or {}).get("content_hash")
+    record = {"dataset": meta.get("dataset"), "bundle_content_hash": want, "content_hash": have,
+              "same_content": None if want is None or have is None else want == have}
+    if record["same_content"] is False:
+        print(f"note: the bundle was pretrained on {meta.get('dataset')} with content {want[:12]}…, the cached "
+              f"dataset holds {have[:12]}… (regenerated): other episodes of the same generator; recorded as "
+              "dataset_vs_bundle in config.json.", flush=True)
+    return record
+
+
 def _find_bundles(root: Path) -> list[Path]:
     return sorted(p.parent for p in Path(root).rglob("metadata.json")
                   if json.loads(p.read_text()).get("kind") == BUNDLE_KIND)

@@ -13,7 +13,8 @@ Kinds (per env, D4RL's definitions adapted to the suite's own SAC runs, ``checkp
 
 Each dataset is ``size`` transitions from ``num_envs`` envs run side by side (episodes stay contiguous per env); time
 limits are ``timeouts``, true terminations ``terminals``. Same name, size and seed ⇒ identical arrays (checked by the
-content hash in the metadata).
+content hash in the metadata), given the same XLA threading: ``make`` generates with one XLA thread
+(``generation_xla_flags``), since multi-threaded rounding gives hopper and walker2d other episodes.
 
     python -m proto_brax.datasets list
     python -m proto_brax.datasets make hopper-medium [--size N] [--seed S]
@@ -98,6 +99,34 @@ def dataset_path(name: str, size: int | None = None, seed: int = 0, cache: Path 
     size = size or default_size(env)
     suffix = "" if (size == default_size(env) and seed == 0) else f"-n{size}-seed{seed}"
     return cache_dir(cache) / f"{name}{suffix}.npz"
+
+
+_THREAD_FLAGS = ("xla_cpu_multi_thread_eigen", "intra_op_parallelism_threads")
+
+
+def generation_xla_flags(flags: str | None = None, mjx: bool = False) -> str:
+    """The XLA_FLAGS datasets are generated under: one XLA thread whatever the caller set (+ MJX's scheduler fix).
+
+    Why: XLA's multi-threaded CPU kernels round differently from its single-threaded ones, and on envs whose episodes
+    end on falls that changes the episodes. Measured (walker2d-medium, 5·10⁴ rows, one machine): multi-threaded and
+    single-threaded generation gave different content hashes (128 vs 127 episodes), single-threaded generation gave
+    the same hash twice and again with the CPU capped at AVX2 (``--xla_cpu_max_isa=AVX2``). Single-threaded,
+    halfcheetah-medium reproduced the hash its bundle recorded on an earlier machine; hopper/walker2d-medium did not
+    reproduce the hashes of caches built on earlier machines without this pin. Pure: returns the value for an entry
+    point to set before jax starts."""
+    from proto_brax import envs
+
+    flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
+    kept = " ".join(f for f in flags.split() if not f.lstrip("-").startswith(_THREAD_FLAGS))
+    kept = envs.single_thread_xla_flags(kept)
+    return envs.mjx_xla_flags(kept) if mjx else kept
+
+
+def generation_numerics_pinned() -> bool:
+    """Whether this process runs under ``generation_xla_flags`` (its thread flags, as jax read them at start)."""
+    from proto_brax.envs import SINGLE_THREAD_XLA_FLAGS
+
+    return all(f in os.environ.get("XLA_FLAGS", "").split() for f in SINGLE_THREAD_XLA_FLAGS)
 
 
 def rebuild_command(name: str, size: int | None, seed: int) -> str:
@@ -398,8 +427,12 @@ def cmd_make(a: Make) -> Path:
             sub_path = dataset_path(a.name.replace("medium-expert", sub), a.size, a.seed, a.cache_dir)
             if sub_path.exists() and not stale_reason((part := load_npz(sub_path))[1]):
                 parts[sub] = part
+    if not generation_numerics_pinned():
+        print(f"warning: {a.name} is generated under multi-threaded XLA, whose rounding differs (other episodes, "
+              "another content hash): `python -m proto_brax.datasets make` pins one thread.", flush=True)
     data, meta = make_dataset(a.name, a.size, a.seed, a.num_envs, parts=parts)
     meta["seconds"] = time.time() - t0
+    meta["xla_flags"] = os.environ.get("XLA_FLAGS", "")  # provenance: the numerics it was generated under
     path.parent.mkdir(parents=True, exist_ok=True)
     save_npz(path, data, meta)
     r = meta["returns"]
@@ -478,11 +511,11 @@ def main(argv: list[str] | None = None) -> None:
     cmd = tyro.extras.subcommand_cli_from_dict(
         {"make": Make, "info": Info, "list": List, "references": References, "measure": Measure}, args=argv
     )
-    if isinstance(cmd, Make) and cmd.name in dataset_names():  # before JAX starts: MJX's CPU scheduler fix
+    if isinstance(cmd, Make) and cmd.name in dataset_names():  # before JAX starts: the pinned generation numerics
         from proto_brax import envs
 
-        if envs.get_spec(parse_name(cmd.name)[0]).default_backend == "mjx":  # AntMaze, Adroit
-            os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
+        mjx = envs.get_spec(parse_name(cmd.name)[0]).default_backend == "mjx"  # AntMaze, Adroit
+        os.environ["XLA_FLAGS"] = generation_xla_flags(mjx=mjx)
     {Make: cmd_make, Info: cmd_info, List: cmd_list, References: cmd_references, Measure: cmd_measure}[type(cmd)](cmd)
 
 

@@ -78,7 +78,7 @@ def pretrain(args: PretrainArgs) -> dict:
     data = transform_rewards(data, scale, shift)
     if args.algo == "calql":
         data = with_returns_to_go(data, float(hp.gamma))
-    dname = Path(args.dataset).stem if Path(args.dataset).suffix else args.dataset
+    dname = checkpoints.dataset_label(args.dataset)
     out = Path(args.out or Path("checkpoints/pretrained") / dname / args.algo)
     if (out / "metadata.json").exists() and not args.overwrite:
         raise FileExistsError(f"{out} already holds a bundle: pass --overwrite or another --out.")

@@ -90,7 +90,7 @@ def test_corrupt_or_missing_checkpoint_gives_clear_error(bundle, tmp_path):
 
 
 def test_sweep_finetune_only_from_bundle(bundle, tmp_path, capsys):
-    root, data_file, _ = bundle
+    root, data_file, meta = bundle
     args = sweep.SweepArgs(env="point", checkpoint=str(root / "eql"), dataset=str(data_file), tau=(0.005,), eta=(0.9,),
                            seeds=(0, 1, 2), steps=400, eval_every=200, eval_episodes=2, hidden=(32, 32),
                            batch_size=32, learning_starts=64, out=tmp_path / "sw", hp=dict(SCRATCH, alpha0=1.0))
@@ -100,10 +100,28 @@ def test_sweep_finetune_only_from_bundle(bundle, tmp_path, capsys):
     assert summary[0]["final_eval_return"]["n"] == 3
     rows = [json.loads(x) for x in (tmp_path / "sw" / "metrics.jsonl").read_text().splitlines()]
     assert all(np.isfinite(r["eval_return"]) for r in rows)
+    # the buffer holds the very rows the bundle was pretrained on, and config.json says so
+    assert cfg["dataset_vs_bundle"] == {"dataset": "point-noisy", "bundle_content_hash": meta["dataset_content_hash"],
+                                        "content_hash": meta["dataset_content_hash"], "same_content": True}
+    other = tmp_path / "point-other.npz"  # another dataset than the bundle's: refused before anything is written
+    shutil.copy(data_file, other)
+    with pytest.raises(checkpoints.CheckpointError, match="pretrained on dataset 'point-noisy', the finetune reads "
+                                                          "'point-other': pass --dataset point-noisy"):
+        sweep.run_sweep(dataclasses.replace(args, dataset=str(other), out=tmp_path / "other"))
+    assert not (tmp_path / "other").exists()
     bad = sweep.SweepArgs(env="point", checkpoint=str(root / "eql"), hidden=(64, 64), out=tmp_path / "bad")
     with pytest.raises(checkpoints.CheckpointError, match="hidden sizes"):
         sweep.run_sweep(bad)
     assert not (tmp_path / "bad").exists()
+
+
+def test_regenerated_dataset_is_recorded_not_refused(bundle, capsys):
+    _, _, meta = bundle
+    rec = checkpoints.bundle_dataset_record(meta, {"content_hash": "f" * 64})
+    assert rec["same_content"] is False and rec["content_hash"] == "f" * 64
+    assert "regenerated" in capsys.readouterr().out
+    assert checkpoints.bundle_dataset_record({**meta, "dataset_content_hash": None}, {})["same_content"] is None
+    checkpoints.validate_bundle_dataset(meta, "/elsewhere/point-noisy.npz")  # a file's stem is its name
 
 
 def test_checkpoints_cli_lists_bundles(bundle, capsys):

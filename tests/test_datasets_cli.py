@@ -149,12 +149,23 @@ def test_episodes_are_contiguous_and_bounded(medium):
     np.testing.assert_allclose(data.next_observations[inner], data.observations[inner + 1], atol=1e-6)
 
 
-def test_cli_make_info_list_and_corruption(tmp_path, capsys):
+def test_generation_pins_one_xla_thread_whatever_the_caller_set():
+    flags = datasets.generation_xla_flags("--xla_cpu_multi_thread_eigen=true --xla_foo=1 "
+                                          "intra_op_parallelism_threads=8")
+    assert flags == "--xla_foo=1 --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    mjx = datasets.generation_xla_flags("", mjx=True)
+    assert mjx.endswith("intra_op_parallelism_threads=1 --xla_cpu_enable_concurrency_optimized_scheduler=false")
+    assert datasets.generation_xla_flags(flags) == flags  # idempotent
+
+
+def test_cli_make_info_list_and_corruption(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
     args = ["--size", "2000", "--num-envs", "20", "--cache-dir", str(tmp_path)]
     datasets.main(["make", "point-random", *args])
     path = datasets.dataset_path("point-random", 2000, 0, tmp_path)
     assert path.exists() and not list(tmp_path.glob(".*tmp"))
-    load_npz(path)
+    _, meta = load_npz(path)
+    assert meta["xla_flags"] == "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"  # as generated
     datasets.main(["info", "point-random", "--size", "2000", "--cache-dir", str(tmp_path)])
     out = capsys.readouterr().out
     assert "episodes" in out and "return mean" in out

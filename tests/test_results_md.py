@@ -35,7 +35,8 @@ def curve(method: str, seed: int, tau: float = 0.005) -> list[float]:
             "sac-scratch": [1.0, 2.0, 5.0, 10.0 + seed]}[method]
 
 
-def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,)) -> Path:
+def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,), hashes=None) -> Path:
+    """A published sweep as locomotion.py writes it; ``hashes`` = (the bundle's pretraining data, the buffer's)."""
     d = root / dataset / method
     d.mkdir(parents=True)
     rows = []
@@ -49,8 +50,11 @@ def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,
     with gzip.open(d / "metrics.jsonl.gz", "wt") as f:
         f.write("\n".join(json.dumps(r) for r in rows) + "\n")
     used = "none" if method == "sac-scratch" else dataset  # as the sweeps' configs: the dataset trained on
-    (d / "config.json").write_text(json.dumps({"sweep": {"env": dataset.split("-")[0], "algo": method,
-                                                         "dataset": used}}))
+    config = {"sweep": {"env": dataset.split("-")[0], "algo": method, "dataset": used}}
+    if hashes:
+        config |= {"checkpoint_metadata": {"dataset_content_hash": hashes[0]},
+                   "dataset_metadata": {"content_hash": hashes[1]}}
+    (d / "config.json").write_text(json.dumps(config))
     (d / "summary.json").write_text(json.dumps({"env": dataset.split("-")[0], "steps": STEPS[-1], "points": []}))
     return d
 
@@ -59,8 +63,9 @@ def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,
 def published(tmp_path_factory):
     root = tmp_path_factory.mktemp("published")
     for dataset in ("hopper-medium", "walker2d-medium"):
-        for method in ("proto-sac", "direct", "frozen"):
-            publish(root / "locomotion", dataset, method)
+        for method in ("proto-sac", "direct", "frozen"):  # walker2d's direct ran on a regenerated dataset
+            regenerated = dataset == "walker2d-medium" and method == "direct"
+            publish(root / "locomotion", dataset, method, hashes=("ab", "cd" if regenerated else "ab"))
     publish(root / "locomotion", "hopper-medium", "ablate-tau", taus=(0.0025, 0.01))
     cost = {"command": "python benchmarks/methods_cost.py", "date": "today", "env": "hopper", "status": "test",
             "results": {"proto-sac": {"seconds_per_1e5_steps": 110.0, "ratio_to_proto_sac": 1.0},
@@ -99,6 +104,9 @@ def test_results_page_states_the_claims_with_numbers(published):
     assert "PROTO ends above IQL finetune:** not measured yet" in text
     assert "= 1.10" in text  # (3) 110 / 100
     assert "| proto-sac | 2 | 6 | 81.0 [80.2, 81.8] | 27.0 [" in text  # IQM of 80, 81, 82 twice
+    assert "**Buffer data:** 1 sweep(s) put a regenerated copy" in text and ": walker2d-medium/direct. " in text
+    assert "| direct | – | 30.0 | 6.0 | 71.0 ± 0.8 | 71.0 [70.0, 72.0] | 3 | regenerated |" in text
+    assert "| frozen | – | 30.0 | 31.0 | 61.0 ± 0.8 | 61.0 [60.0, 62.0] | 3 | bundle's |" in text
     assert "**Coverage:** 6 of the 84 planned sweeps" in text  # 2 datasets × 3 methods; the ablation is not one
     assert "Partial: hopper-medium (missing iql, sac-scratch, proto-td3, proto-bc); walker2d-medium (missing" in text
     # the τ ablation: its two values from its sweep, τ₀ from the proto-sac sweep; kept out of the method tables
