@@ -118,8 +118,7 @@ def generation_xla_flags(flags: str | None = None, mjx: bool = False) -> str:
 
     flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
     kept = " ".join(f for f in flags.split() if not f.lstrip("-").startswith(_THREAD_FLAGS))
-    kept = envs.single_thread_xla_flags(kept)
-    return envs.mjx_xla_flags(kept) if mjx else kept
+    return envs.single_thread_mjx_xla_flags(kept) if mjx else envs.single_thread_xla_flags(kept)
 
 
 def generation_numerics_pinned() -> bool:
