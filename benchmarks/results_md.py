@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from locomotion import ABLATIONS, DATASETS, ETA0, PAPER_METHODS, TAU0, method_of  # noqa: E402
 
-from proto_brax.checkpoints import write_json_atomic  # noqa: E402
+from proto_brax.checkpoints import bundle_dataset_record, write_json_atomic  # noqa: E402
 from proto_brax.report import Sweep, load_sweep  # noqa: E402
 from proto_brax.stats import iqm_ci  # noqa: E402
 from proto_brax.sweep import lowest_early_scores  # noqa: E402
@@ -142,11 +142,10 @@ def methods_in(table) -> list[str]:
 def buffer_data(config: dict) -> str:
     """Whether a sweep's dataset held the rows its bundle was pretrained on: "bundle's", "regenerated" (the same
     registered dataset with another content hash) or "–" (no bundle, or no dataset)."""
-    want = (config.get("checkpoint_metadata") or {}).get("dataset_content_hash")
-    have = (config.get("dataset_metadata") or {}).get("content_hash")
-    if want is None or have is None:
-        return "–"
-    return "bundle's" if want == have else "regenerated"
+    record = config.get("dataset_vs_bundle")  # sweeps before session 8 did not record it: derive it the same way
+    if record is None and config.get("checkpoint_metadata") and config.get("dataset_metadata"):
+        record = bundle_dataset_record(config["checkpoint_metadata"], config["dataset_metadata"])
+    return {True: "bundle's", False: "regenerated"}.get((record or {}).get("same_content"), "–")
 
 
 def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:

@@ -284,19 +284,24 @@ def validate_bundle_dataset(meta: dict[str, Any], dataset: str) -> None:
 
 def bundle_dataset_record(meta: dict[str, Any], dataset_meta: dict[str, Any] | None) -> dict[str, Any]:
     """Whether the finetune's dataset holds the very rows the bundle was pretrained on (content hashes), for the
-    sweep's config.json; a difference is announced, not refused.
+    sweep's config.json (``dataset_vs_bundle``) and RESULTS.md's *buffer data* column; a difference is announced
+    (:func:`regenerated_note`), not refused. ``same_content`` is None when either hash is unknown.
 
     The same registered dataset can hold other rows when it was regenerated under other XLA threading
     (``datasets.generation_xla_flags``: on hopper and walker2d, whose episodes end on falls, the rounding changes the
     episodes): the buffer then holds other episodes of the same generator and behaviour policies."""
     want, have = meta.get("dataset_content_hash"), (dataset_meta or {}).get("content_hash")
-    record = {"dataset": meta.get("dataset"), "bundle_content_hash": want, "content_hash": have,
-              "same_content": None if want is None or have is None else want == have}
-    if record["same_content"] is False:
-        print(f"note: the bundle was pretrained on {meta.get('dataset')} with content {want[:12]}…, the cached "
-              f"dataset holds {have[:12]}… (regenerated): other episodes of the same generator; recorded as "
-              "dataset_vs_bundle in config.json.", flush=True)
-    return record
+    return {"dataset": meta.get("dataset"), "bundle_content_hash": want, "content_hash": have,
+            "same_content": None if want is None or have is None else want == have}
+
+
+def regenerated_note(record: dict[str, Any]) -> str | None:
+    """The line a sweep prints when its dataset is a regenerated copy of its bundle's (else None)."""
+    if record["same_content"] is not False:
+        return None
+    return (f"note: the bundle was pretrained on {record['dataset']} with content "
+            f"{record['bundle_content_hash'][:12]}…, the cached dataset holds {record['content_hash'][:12]}… "
+            "(regenerated): other episodes of the same generator; recorded as dataset_vs_bundle in config.json.")
 
 
 def _find_bundles(root: Path) -> list[Path]:

@@ -128,9 +128,14 @@ def generation_numerics_pinned() -> bool:
     return all(f in os.environ.get("XLA_FLAGS", "").split() for f in SINGLE_THREAD_XLA_FLAGS)
 
 
+def make_argv(name: str, size: int | None, seed: int) -> list[str]:
+    """``python -m proto_brax.datasets`` arguments that (re)build dataset ``name`` in the registry's cache."""
+    return ["make", name, *(["--size", str(size)] if size else []), *(["--seed", str(seed)] if seed else []),
+            "--force"]
+
+
 def rebuild_command(name: str, size: int | None, seed: int) -> str:
-    extra = (f" --size {size}" if size else "") + (f" --seed {seed}" if seed else "")
-    return f"python -m proto_brax.datasets make {name}{extra} --force"
+    return " ".join(["python -m proto_brax.datasets", *make_argv(name, size, seed)])
 
 
 def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: int = 100,

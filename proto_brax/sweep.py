@@ -170,8 +170,9 @@ def _load_dataset(name_or_path: str | None, size: int | None = None):
         stale = path.exists() and datasets.stale_reason(datasets.cached_metadata(path))
         if stale or not path.exists():  # made from other behaviour snapshots than the current rule picks, or missing
             state = f"is stale ({stale})" if stale else "is not cached"
-            command = datasets.rebuild_command(name_or_path, size, 0)
-            print(f"dataset {name_or_path} {state}: building it (= {command})", flush=True)
+            argv = datasets.make_argv(name_or_path, size, 0)
+            print(f"dataset {name_or_path} {state}: building it (= python -m proto_brax.datasets {' '.join(argv)})",
+                  flush=True)
             import subprocess
             import sys
 
@@ -179,7 +180,7 @@ def _load_dataset(name_or_path: str | None, size: int | None = None):
 
             # In a process of its own: generation runs under pinned XLA threading (datasets.generation_xla_flags),
             # which this process's jax, already started, may not have.
-            subprocess.run([sys.executable, "-m", "proto_brax.datasets", *command.split()[3:]], check=True)
+            subprocess.run([sys.executable, "-m", "proto_brax.datasets", *argv], check=True)
             # what was just built (re-checking it could call it stale again while its behaviour policy trains on)
             return load_npz(path)
     return datasets.load_dataset(name_or_path, size)  # a file, or an error naming the problem
@@ -463,7 +464,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
                          f"{' or '.join(method.bundles) or '(none: it starts from a random init)'}.")
     # The bundle is validated (and loaded: a few MB) before any dataset is built or read.
     pretrained, per_run, bmeta = _load_checkpoint(None if args.pretrain else ckpt, cfg, grid, args.algo)
-    from proto_brax.checkpoints import bundle_dataset_record, validate_bundle_dataset
+    from proto_brax.checkpoints import bundle_dataset_record, regenerated_note, validate_bundle_dataset
 
     if bmeta is not None and dataset_name is not None:
         validate_bundle_dataset(bmeta, dataset_name)
@@ -476,6 +477,8 @@ def run_sweep(args: SweepArgs) -> list[dict]:
               "checkpoint_metadata": bmeta}
     if bmeta is not None and dmeta is not None:
         config["dataset_vs_bundle"] = bundle_dataset_record(bmeta, dmeta)
+        if note := regenerated_note(config["dataset_vs_bundle"]):
+            print(note, flush=True)
     import jax
 
     lead = jax.process_index() == 0  # with --distributed, process 0 writes; the others compute their shards

@@ -115,11 +115,13 @@ def test_sweep_finetune_only_from_bundle(bundle, tmp_path, capsys):
     assert not (tmp_path / "bad").exists()
 
 
-def test_regenerated_dataset_is_recorded_not_refused(bundle, capsys):
+def test_regenerated_dataset_is_recorded_not_refused(bundle):
     _, _, meta = bundle
     rec = checkpoints.bundle_dataset_record(meta, {"content_hash": "f" * 64})
     assert rec["same_content"] is False and rec["content_hash"] == "f" * 64
-    assert "regenerated" in capsys.readouterr().out
+    assert "regenerated" in checkpoints.regenerated_note(rec) and "ffffffffffff…" in checkpoints.regenerated_note(rec)
+    same = checkpoints.bundle_dataset_record(meta, {"content_hash": meta["dataset_content_hash"]})
+    assert same["same_content"] is True and checkpoints.regenerated_note(same) is None
     assert checkpoints.bundle_dataset_record({**meta, "dataset_content_hash": None}, {})["same_content"] is None
     checkpoints.validate_bundle_dataset(meta, "/elsewhere/point-noisy.npz")  # a file's stem is its name
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from proto_brax import report
+from proto_brax.checkpoints import bundle_dataset_record
 
 ROOT = Path(__file__).resolve().parents[1]
 STEPS = (100, 200, 300, 1000)  # the first 10% of a 1000-step run holds the evaluations at 100 (not 200)
@@ -35,7 +36,8 @@ def curve(method: str, seed: int, tau: float = 0.005) -> list[float]:
             "sac-scratch": [1.0, 2.0, 5.0, 10.0 + seed]}[method]
 
 
-def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,), hashes=None) -> Path:
+def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,), hashes=None,
+            recorded=False) -> Path:
     """A published sweep as locomotion.py writes it; ``hashes`` = (the bundle's pretraining data, the buffer's)."""
     d = root / dataset / method
     d.mkdir(parents=True)
@@ -51,9 +53,11 @@ def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,
         f.write("\n".join(json.dumps(r) for r in rows) + "\n")
     used = "none" if method == "sac-scratch" else dataset  # as the sweeps' configs: the dataset trained on
     config = {"sweep": {"env": dataset.split("-")[0], "algo": method, "dataset": used}}
-    if hashes:
-        config |= {"checkpoint_metadata": {"dataset_content_hash": hashes[0]},
-                   "dataset_metadata": {"content_hash": hashes[1]}}
+    if hashes:  # as sweeps before session 8 (no dataset_vs_bundle record) or after (recorded)
+        meta, dmeta = {"dataset": dataset, "dataset_content_hash": hashes[0]}, {"content_hash": hashes[1]}
+        config |= {"checkpoint_metadata": meta, "dataset_metadata": dmeta}
+        if recorded:
+            config["dataset_vs_bundle"] = bundle_dataset_record(meta, dmeta)
     (d / "config.json").write_text(json.dumps(config))
     (d / "summary.json").write_text(json.dumps({"env": dataset.split("-")[0], "steps": STEPS[-1], "points": []}))
     return d
@@ -65,7 +69,8 @@ def published(tmp_path_factory):
     for dataset in ("hopper-medium", "walker2d-medium"):
         for method in ("proto-sac", "direct", "frozen"):  # walker2d's direct ran on a regenerated dataset
             regenerated = dataset == "walker2d-medium" and method == "direct"
-            publish(root / "locomotion", dataset, method, hashes=("ab", "cd" if regenerated else "ab"))
+            publish(root / "locomotion", dataset, method, hashes=("ab", "cd" if regenerated else "ab"),
+                    recorded=dataset == "walker2d-medium")
     publish(root / "locomotion", "hopper-medium", "ablate-tau", taus=(0.0025, 0.01))
     cost = {"command": "python benchmarks/methods_cost.py", "date": "today", "env": "hopper", "status": "test",
             "results": {"proto-sac": {"seconds_per_1e5_steps": 110.0, "ratio_to_proto_sac": 1.0},
