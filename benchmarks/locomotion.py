@@ -41,6 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from proto_brax.envs import single_thread_xla_flags  # noqa: E402
+from proto_brax.files import atomic_write, copy_atomic  # noqa: E402
 from proto_brax.methods import METHODS, Method  # noqa: E402
 from proto_brax.sweep import PRESETS  # noqa: E402
 
@@ -120,16 +121,14 @@ def publish(dataset: str, method: str, args: Args) -> None:
     """Copy a finished sweep to the results tree; summary.json goes last, as it marks the sweep done."""
     src, dst = args.runs / dataset / method, args.results / dataset / method
     dst.mkdir(parents=True, exist_ok=True)
-    shutil.copy2(src / "config.json", dst / "config.json")
-    tmp = dst / ".metrics.jsonl.gz.tmp"
-    with open(src / "metrics.jsonl", "rb") as f, open(tmp, "wb") as raw, \
+    copy_atomic(src / "config.json", dst / "config.json")
+    with open(src / "metrics.jsonl", "rb") as f, atomic_write(dst / "metrics.jsonl.gz", "wb") as raw, \
             gzip.GzipFile(fileobj=raw, mode="wb", filename="", mtime=0) as g:  # mtime 0: same bytes on a rerun
         shutil.copyfileobj(f, g)
-    tmp.replace(dst / "metrics.jsonl.gz")
-    if (src / "report").is_dir():
-        shutil.copytree(src / "report", dst / "report", dirs_exist_ok=True)
-    shutil.copy2(src / "summary.json", dst / ".summary.json.tmp")
-    (dst / ".summary.json.tmp").replace(dst / "summary.json")
+    for png in sorted((src / "report").glob("**/*")) if (src / "report").is_dir() else []:
+        if png.is_file():
+            copy_atomic(png, dst / "report" / png.relative_to(src / "report"))
+    copy_atomic(src / "summary.json", dst / "summary.json")
 
 
 def shared_sweep(dataset: str, method: str, args: Args) -> Path | None:

@@ -33,6 +33,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from locomotion import ABLATIONS, DATASETS, ETA0, PAPER_METHODS, TAU0, method_of  # noqa: E402
 
 from proto_brax.checkpoints import bundle_dataset_record, write_json_atomic  # noqa: E402
+from proto_brax.files import atomic_write, write_text_atomic  # noqa: E402
 from proto_brax.report import Sweep, load_sweep  # noqa: E402
 from proto_brax.stats import iqm_ci  # noqa: E402
 from proto_brax.sweep import lowest_early_scores  # noqa: E402
@@ -300,11 +301,9 @@ def aggregate_curves(table, path: Path) -> dict:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=120)
+    with atomic_write(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=120)
     plt.close(fig)
-    tmp.replace(path)
     return curves
 
 
@@ -362,9 +361,7 @@ def render(args: Args) -> str:
 
 def main(args: Args) -> None:
     text = render(args)
-    tmp = args.out.with_name(f".{args.out.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(args.out)
+    write_text_atomic(args.out, text)
     print(text)
 
 

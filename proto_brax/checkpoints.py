@@ -12,13 +12,14 @@ import json
 import math
 import os
 import shutil
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
 import orbax.checkpoint as ocp
+
+from proto_brax.files import atomic_write, write_text_atomic
 
 FORMAT_VERSION = 1
 
@@ -28,17 +29,9 @@ class CheckpointError(ValueError):
 
 
 def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=2, sort_keys=True, default=_json_default)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path) as f:
+        json.dump(obj, f, indent=2, sort_keys=True, default=_json_default)
+        f.write("\n")
 
 
 def _json_default(x):
@@ -357,9 +350,7 @@ def main(argv: list[str] | None = None) -> None:
     if argv[0] == "index":
         root = Path(argv[1] if len(argv) > 1 else "checkpoints")
         text = index_markdown(root)
-        tmp = root / ".INDEX.md.tmp"
-        tmp.write_text(text)
-        os.replace(tmp, root / "INDEX.md")
+        write_text_atomic(root / "INDEX.md", text)
         print(text)
         return
     if argv[0] == "list":

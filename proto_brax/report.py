@@ -26,12 +26,13 @@ import gzip
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import tyro
+
+from proto_brax.files import atomic_write
 
 GRID_AXES = ("tau", "eta", "alpha0")
 REQUIRED_KEYS = ("chunk", "run", "seed", "tau", "eta", "alpha0", "step", "eval_return", "normalized_score",
@@ -325,15 +326,8 @@ def _figure(n_panels: int, panel_w=5.0, panel_h=3.8, ncols_max=3):
 
 
 def _save(fig, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png", dpi=110)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=110)
 
 
 def plot_curves(sweeps: list[Sweep], curve_data: list[dict], colors: dict, path: Path) -> None:

@@ -22,6 +22,7 @@ from typing import Literal
 
 import numpy as np
 
+from proto_brax.files import write_text_atomic
 from proto_brax.methods import METHODS, describe, get_method
 
 GRID_AXES = ("tau", "eta", "alpha0")
@@ -388,9 +389,7 @@ def _truncate_metrics(path: Path, chunks_done: int) -> None:
     if not path.exists():
         return
     keep = [line for line in path.read_text().splitlines() if line and json.loads(line)["chunk"] < chunks_done]
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text("".join(line + "\n" for line in keep))
-    os.replace(tmp, path)
+    write_text_atomic(path, "".join(line + "\n" for line in keep))
 
 
 def lowest_early_scores(runs: list[list[dict]], fraction: float = 0.1) -> list[float]:

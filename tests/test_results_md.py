@@ -185,3 +185,24 @@ def test_a_dataset_free_sweep_is_shared_by_its_envs_datasets_and_counted_once(tm
     text = out.read_text()
     assert "| sac-scratch | 1 | 3 | 11.0 [" in text and "| proto-sac | 2 | 6 |" in text
     assert text.count("| sac-scratch | – | 30.0 | 2.0 | 11.0 ± 0.8 |") == 2  # one row in each hopper table
+
+
+def test_locomotion_publish_copies_a_finished_sweep_reproducibly(tmp_path):
+    """publish: config, gzipped metrics (same bytes on a rerun), report PNGs and summary.json (written last)."""
+    locomotion = load_module("locomotion")
+    src = tmp_path / "runs" / "hopper-medium" / "frozen"
+    (src / "report").mkdir(parents=True)
+    (src / "config.json").write_text('{"sweep": {}}')
+    (src / "metrics.jsonl").write_text('{"chunk": 0, "step": 5}\n{"chunk": 1, "step": 10}\n')
+    (src / "report" / "curves.png").write_bytes(b"\x89PNG fake")
+    (src / "summary.json").write_text('{"steps": 10}')
+    args = locomotion.Args(runs=tmp_path / "runs", results=tmp_path / "results")
+    locomotion.publish("hopper-medium", "frozen", args)
+    dst = tmp_path / "results" / "hopper-medium" / "frozen"
+    first = (dst / "metrics.jsonl.gz").read_bytes()
+    assert gzip.decompress(first).decode() == (src / "metrics.jsonl").read_text()
+    assert (dst / "report" / "curves.png").read_bytes() == b"\x89PNG fake"
+    assert json.loads((dst / "summary.json").read_text()) == {"steps": 10}
+    locomotion.publish("hopper-medium", "frozen", args)
+    assert (dst / "metrics.jsonl.gz").read_bytes() == first
+    assert sorted(p.name for p in dst.iterdir()) == ["config.json", "metrics.jsonl.gz", "report", "summary.json"]

@@ -20,7 +20,6 @@ import hashlib
 import json
 import os
 import pathlib
-import tempfile
 import zipfile
 from collections.abc import Iterator, Mapping
 from typing import Any, Union
@@ -28,6 +27,8 @@ from typing import Any, Union
 import jax
 import numpy as np
 from flax import struct
+
+from proto_brax.files import atomic_write
 
 PathLike = Union[str, "os.PathLike[str]"]  # a file or directory path
 
@@ -137,9 +138,8 @@ def save_npz(path: PathLike, dataset: OfflineDataset, metadata: Mapping[str, Any
     JSON-serialisable (no NaN/inf); it comes back from :func:`load_npz` as JSON does (tuples become lists).
     ``metadata`` itself is not modified.
 
-    The write is atomic: the data go to a temporary file in the same directory, which is fsynced and then moved
-    onto ``path`` with ``os.replace``. If anything fails on the way, the temporary file is removed and ``path`` is
-    left as it was (absent, or the previous complete file).
+    The write is atomic (:func:`proto_brax.files.atomic_write`): if anything fails on the way, ``path`` is left as
+    it was (absent, or the previous complete file).
     """
     path = os.fspath(path)
     arrays = _canonical_arrays(dataset)
@@ -148,25 +148,8 @@ def save_npz(path: PathLike, dataset: OfflineDataset, metadata: Mapping[str, Any
     full_metadata["content_hash"] = _hash_arrays(arrays)
     metadata_json = json.dumps(full_metadata, sort_keys=True, allow_nan=False)  # fails before any file is touched
 
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp_path = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp makes it 0600; give it the mode a plain open() would
-            np.savez(f, **arrays, **{_METADATA_KEY: np.array(metadata_json)})  # a unicode array: no pickling
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp_path, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp_path)
-        raise
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+    with atomic_write(path, "wb") as f:
+        np.savez(f, **arrays, **{_METADATA_KEY: np.array(metadata_json)})  # a unicode array: no pickling
 
 
 def _corrupt(path: str, reason: str, rebuild_hint: str | None) -> CorruptDatasetError:
