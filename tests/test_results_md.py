@@ -206,3 +206,25 @@ def test_locomotion_publish_copies_a_finished_sweep_reproducibly(tmp_path):
     locomotion.publish("hopper-medium", "frozen", args)
     assert (dst / "metrics.jsonl.gz").read_bytes() == first
     assert sorted(p.name for p in dst.iterdir()) == ["config.json", "metrics.jsonl.gz", "report", "summary.json"]
+
+
+def test_datasets_record_keeps_each_build_once_with_where_it_was_seen(tmp_path):
+    rec_mod = load_module("datasets_record")
+    meta = {"name": "hopper-medium", "content_hash": "ab" * 32, "size": 10, "kind": "medium", "env": "hopper",
+            "seed": 0, "seconds": 1.0, "xla_flags": "", "returns": {"num_episodes": 2, "mean": 5.0}}
+    for method in ("frozen", "direct"):  # two published sweeps that had the same copy in their buffer
+        d = tmp_path / "sweeps" / "hopper-medium" / method
+        d.mkdir(parents=True)
+        (d / "config.json").write_text(json.dumps({"dataset_metadata": meta}))
+    (tmp_path / "bundles" / "hopper-medium" / "eql").mkdir(parents=True)
+    (tmp_path / "bundles" / "hopper-medium" / "eql" / "metadata.json").write_text(
+        json.dumps({"dataset_content_hash": "ab" * 32}))
+    args = rec_mod.Args(out=tmp_path / "datasets.json", bundles=tmp_path / "bundles", sweeps=tmp_path / "sweeps",
+                        cache_dir=tmp_path / "empty-cache")
+    rec_mod.main(args)
+    rec = rec_mod.main(args)  # a rerun adds nothing
+    (build,) = rec["hopper-medium"]["builds"]
+    assert build["seen"] == [{"sweep": "hopper-medium/direct"}, {"sweep": "hopper-medium/frozen"}]
+    assert build["bundles"] == ["hopper-medium/eql"] and build["returns"]["num_episodes"] == 2
+    assert rec_mod.merge(rec, "hopper-medium", {**build, "content_hash": "cd" * 32}, {"date": "x"})  # another build
+    assert len(rec["hopper-medium"]["builds"]) == 2
