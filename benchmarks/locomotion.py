@@ -125,9 +125,9 @@ def publish(dataset: str, method: str, args: Args) -> None:
     with open(src / "metrics.jsonl", "rb") as f, atomic_write(dst / "metrics.jsonl.gz", "wb") as raw, \
             gzip.GzipFile(fileobj=raw, mode="wb", filename="", mtime=0) as g:  # mtime 0: same bytes on a rerun
         shutil.copyfileobj(f, g)
-    for png in sorted((src / "report").glob("**/*")) if (src / "report").is_dir() else []:
-        if png.is_file():
-            copy_atomic(png, dst / "report" / png.relative_to(src / "report"))
+    for f in sorted((src / "report").rglob("*")):  # the sweep's report PNGs (none when it made no report)
+        if f.is_file():
+            copy_atomic(f, dst / "report" / f.relative_to(src / "report"))
     copy_atomic(src / "summary.json", dst / "summary.json")
 
 

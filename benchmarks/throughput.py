@@ -39,7 +39,6 @@ import platform
 import resource
 import statistics
 import sys
-import tempfile
 import time
 from typing import Any, Callable
 
@@ -50,6 +49,7 @@ import tyro
 from jax import lax
 
 from proto_brax import envs
+from proto_brax.files import atomic_write
 from proto_brax.algorithms.learner import init_learner
 from proto_brax.train.online import ALGORITHMS
 from proto_brax.config import FinetuneConfig, HParams
@@ -350,23 +350,9 @@ def jsonable(x):
 
 
 def write_json_atomic(path: str, payload: dict) -> None:
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".throughput.", suffix=".json.tmp", dir=d)
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)  # mkstemp creates 0600; give the report the usual permissions
-        with os.fdopen(fd, "w") as f:
-            json.dump(jsonable(payload), f, indent=2, allow_nan=False)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_write(path) as f:
+        json.dump(jsonable(payload), f, indent=2, allow_nan=False)
+        f.write("\n")
 
 
 def versions() -> dict:

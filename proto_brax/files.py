@@ -1,4 +1,4 @@
-"""Atomic file writes: every result, dataset, plot and index the suite writes goes through :func:`atomic_write`.
+"""Atomic file writes: the one implementation behind the suite's datasets, JSON results, plots and indexes.
 
 A reader (or a sweep resuming after a crash) sees either the previous complete file or the new complete file, never
 a half-written one: the data go to a temporary file in the target's directory (same filesystem, so the final
