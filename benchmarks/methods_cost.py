@@ -30,8 +30,8 @@ from throughput import Case, aot, log, run_interleaved, synthetic_transitions, v
 
 from proto_brax import envs, sweep
 from proto_brax.config import HParams
-from proto_brax.methods import METHODS
 from proto_brax.data.dataset import with_returns_to_go
+from proto_brax.methods import METHODS
 from proto_brax.train.online import ALGORITHMS, make_finetune
 
 

@@ -49,16 +49,24 @@ import tyro
 from jax import lax
 
 from proto_brax import envs
-from proto_brax.files import atomic_write
 from proto_brax.algorithms.learner import init_learner
-from proto_brax.train.online import ALGORITHMS
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.data.replay import replay_init, replay_insert, replay_sample
+from proto_brax.files import atomic_write
 from proto_brax.networks import NetworkConfig, make_networks
-from proto_brax.train.grid import compile_grid, grid_mesh, make_grid, pad_leading, padded_size, replicate, seed_keys
-from proto_brax.train.grid import shard, use_host_devices
-from proto_brax.train.online import make_finetune
+from proto_brax.train.grid import (
+    compile_grid,
+    grid_mesh,
+    make_grid,
+    pad_leading,
+    padded_size,
+    replicate,
+    seed_keys,
+    shard,
+    use_host_devices,
+)
+from proto_brax.train.online import ALGORITHMS, make_finetune
 
 GOALS = {
     "proto_vs_sac_time_ratio": ("<=", 1.12),

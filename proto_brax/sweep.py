@@ -510,9 +510,8 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     from tqdm import tqdm
 
     from proto_brax import __version__, checkpoints
-    from proto_brax.data.dataset import validate_for_env
+    from proto_brax.data.dataset import transform_rewards, validate_for_env, with_returns_to_go
     from proto_brax.train.grid import compile_grid, grid_mesh, padded_size, run_grid
-    from proto_brax.data.dataset import transform_rewards, with_returns_to_go
     from proto_brax.train.online import ALGORITHMS, make_finetune
 
     ft = make_finetune(cfg)

@@ -9,12 +9,12 @@ import shutil
 import jax
 import numpy as np
 import pytest
+from test_engine import SCRATCH, TINY, finetune_fn, point_dataset
 
 from proto_brax import checkpoints, pretrain, sweep
 from proto_brax.algorithms.learner import Pretrained
 from proto_brax.data.dataset import save_npz
 from proto_brax.networks import NetworkConfig
-from test_engine import SCRATCH, TINY, finetune_fn, point_dataset
 
 ARGS = dict(algo="eql", seeds=(0, 1), steps=400, log_every=200, batch_size=32, hidden=(32, 32), eval_episodes=2,
             hp={"lr_actor": 1e-3, "alpha": 0.5})

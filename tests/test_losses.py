@@ -8,15 +8,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 import reference as ref
 from helpers import perturb
+
 from proto_brax.algorithms import regularizer, sac, td3
 from proto_brax.algorithms.learner import init_learner
-from proto_brax.train.online import ALGORITHMS
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import NetworkConfig, make_networks, tanh_gaussian_log_prob
+from proto_brax.train.online import ALGORITHMS
 
 OBS, ACT, B = 3, 2, 5
 NET = NetworkConfig(hidden=(8, 8), critic_layer_norm=True)

@@ -10,9 +10,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 import reference as ref
 from helpers import perturb, random_batch
+
 from proto_brax import envs, methods, sweep
 from proto_brax.algorithms import awac, iql, pex
 from proto_brax.algorithms.learner import Pretrained, init_learner

@@ -8,9 +8,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 import reference as ref
 from helpers import random_batch
+
 from proto_brax import envs
 from proto_brax.algorithms import eql, iql, sql
 from proto_brax.algorithms.bc import bc_loss

@@ -151,10 +151,10 @@ def test_tensorboard_event_files_hold_the_metrics(tmp_path):
 
 
 def test_pretrain_then_finetune_in_one_command(tmp_path):
-    from proto_brax.data.dataset import save_npz
+    import jax
     from test_engine import point_dataset
 
-    import jax
+    from proto_brax.data.dataset import save_npz
 
     data = tmp_path / "pt.npz"
     save_npz(data, jax.device_get(point_dataset()), {"env": "point"})
@@ -184,8 +184,9 @@ def test_auto_dataset_and_checkpoint_resolution():
 
 def test_reward_transform_resolution():
     """Bundle's transform first (explicit disagreement is an error), then flags, then the env's rule on the data."""
-    from proto_brax.data.dataset import return_range_scale
     from test_engine import point_dataset
+
+    from proto_brax.data.dataset import return_range_scale
 
     args = sweep.SweepArgs(env="hopper")
     assert sweep.reward_transform(args, {"reward_scale": 0.5, "reward_shift": 0.0}, None) == {

@@ -15,7 +15,8 @@ from typing import Any, Callable, Sequence
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 
 from proto_brax.config import HParams, validate_hparams
 from proto_brax.train.evaluate import EpisodeStats
