@@ -6,7 +6,8 @@ Reads every ``benchmarks/results/locomotion/DATASET/METHOD`` (summary.json, conf
 ``benchmarks/locomotion.py`` publishes them), the bundles' offline scores (``checkpoints/pretrained``) and
 ``benchmarks/results/methods_cost.json``; writes RESULTS.md (per-dataset tables, aggregates, the paper's three claims
 checked against the numbers) and ``aggregate.png`` (IQM learning curves over all datasets and seeds per method) next
-to the sweeps. Every number is computed here from those files: rerunning this script regenerates the page.
+to the sweeps, and each dataset's ``curves.png`` (mean ± std over seeds per method against online steps). Every
+number is computed here from those files: rerunning this script regenerates the page.
 
 Definitions (per run = one seed of one dataset × method): *initial* = π₀'s normalized score at step 0 (before any
 online step); *drop* = the lowest score within the first 10% of the online steps (the sweep's
@@ -160,7 +161,7 @@ def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
     for m in methods_of(per):
         lines.append(f"| {m} | {fmt(per[m]['offline'])} | {score_cells(per[m]['runs'])} | "
                      f"{buffer_data(per[m]['config'])} |")
-    return lines + [""]
+    return lines + ["", f"![{dataset} learning curves](results/locomotion/{dataset}/curves.png)", ""]
 
 
 def provenance(table) -> list[str]:
@@ -276,37 +277,64 @@ def cost_table(cost: dict | None) -> list[str]:
     return lines + [""]
 
 
-def aggregate_curves(table, path: Path) -> dict:
-    """IQM [95% CI] over all (dataset, seed) runs per method at step 0 (π₀) and each evaluation index; one PNG."""
+def plot_curves(curves: dict, x: str, xlabel: str, ylabel: str, title: str, path: Path) -> None:
+    """One line per method (``curves[m][x]`` against ``curves[m]["center"]``) with its ``low``–``high`` band."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    curves = {}
-    for m in methods_in(table):
-        runs = method_runs(table, m)[1]
-        n = min(len(r["curve"]) for r in runs)
-        # from π₀'s step-0 score (where every run has one), so that the initial drop shows
-        points = [(0.0, [r["initial"] for r in runs])] if all(math.isfinite(r["initial"]) for r in runs) else []
-        points += [((k + 1) / n, [r["curve"][k] for r in runs]) for k in range(n)]
-        stats = [ci(v) for _, v in points]
-        frac = [f for f, _ in points]
-        curves[m] = {"fraction": frac, "iqm": [s[0] for s in stats], "low": [s[1] for s in stats],
-                     "high": [s[2] for s in stats], "n_runs": len(runs)}
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for m, c in curves.items():
-        ax.plot(c["fraction"], c["iqm"], label=f"{m} ({c['n_runs']} runs)")
-        ax.fill_between(c["fraction"], c["low"], c["high"], alpha=0.15)
-    ax.set_xlabel("fraction of the online budget")
-    ax.set_ylabel("normalized score (IQM, 95% CI)")
-    ax.set_title("All locomotion datasets")
+        ax.plot(c[x], c["center"], label=f"{m} ({c['n_runs']} runs)")
+        ax.fill_between(c[x], c["low"], c["high"], alpha=0.15)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
     with atomic_write(path, "wb") as f:
         fig.savefig(f, format="png", dpi=120)
     plt.close(fig)
+
+
+def from_initial(runs: list[dict]) -> tuple[bool, np.ndarray]:
+    """(starts at π₀, [run, point]): each run's evaluations cut to the shortest run, led by π₀'s step-0 score where
+    every run has one (so that the initial drop shows)."""
+    n = min(len(r["curve"]) for r in runs)
+    start = all(math.isfinite(r["initial"]) for r in runs)
+    return start, np.asarray([[r["initial"]] * start + r["curve"][:n] for r in runs], dtype=float)
+
+
+def aggregate_curves(table, path: Path) -> dict:
+    """IQM [95% CI] over all (dataset, seed) runs per method at step 0 (π₀) and each evaluation index; one PNG."""
+    curves = {}
+    for m in methods_in(table):
+        runs = method_runs(table, m)[1]
+        start, ys = from_initial(runs)
+        n = ys.shape[1] - start
+        frac = [0.0] * start + [(k + 1) / n for k in range(n)]
+        stats = [ci(v) for v in ys.T]
+        curves[m] = {"fraction": frac, "iqm": [s[0] for s in stats], "low": [s[1] for s in stats],
+                     "high": [s[2] for s in stats], "n_runs": len(runs)}
+    plot_curves({m: {**c, "center": c["iqm"]} for m, c in curves.items()}, "fraction",
+                "fraction of the online budget", "normalized score (IQM, 95% CI)", "All locomotion datasets", path)
+    return curves
+
+
+def dataset_curves(dataset: str, per: dict[str, dict], path: Path) -> dict:
+    """Learning curves of one dataset: mean ± std over seeds per method against online steps, from π₀ at step 0 (a
+    diverged run's non-finite scores are left out, as in the tables)."""
+    curves = {}
+    for m in methods_of(per):
+        runs = per[m]["runs"]
+        start, ys = from_initial(runs)
+        steps = [0] * start + runs[0]["steps"][:ys.shape[1] - start]
+        mean, std = np.nanmean(ys, axis=0), np.nanstd(ys, axis=0)
+        curves[m] = {"steps": steps, "center": mean.tolist(), "low": (mean - std).tolist(),
+                     "high": (mean + std).tolist(), "n_runs": len(runs)}
+    plot_curves(curves, "steps", "online steps", "normalized score (mean ± std over seeds)", dataset, path)
     return curves
 
 
@@ -356,6 +384,7 @@ def render(args: Args) -> str:
                      f"{ci_str([r['drop'] for r in runs])} |")
     lines += ["", "## Per dataset", ""]
     for d in sorted(d for d, per in table.items() if methods_of(per)):
+        dataset_curves(d, table[d], args.results / d / "curves.png")
         lines += dataset_table(d, table[d])
     lines += ablation_tables(table)
     lines += cost_table(cost)

@@ -124,6 +124,23 @@ def test_results_page_states_the_claims_with_numbers(published):
     agg = json.loads((published / "locomotion" / "aggregate.json").read_text())
     assert agg["frozen"]["iqm"][-1] == pytest.approx(61.0) and agg["direct"]["n_runs"] == 6
     assert agg["direct"]["fraction"][:2] == [0.0, 0.25] and agg["direct"]["iqm"][0] == 30.0  # from π₀ at step 0
+    for dataset in ("hopper-medium", "walker2d-medium"):  # each dataset's learning curves, linked from its section
+        assert (published / "locomotion" / dataset / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert f"![{dataset} learning curves](results/locomotion/{dataset}/curves.png)" in text
+
+
+def test_dataset_curves_are_mean_and_std_over_seeds_from_pi0(published, tmp_path):
+    mod = load_module()
+    table = mod.collect(mod.Args(results=published / "locomotion", bundles=published / "none"))
+    curves = mod.dataset_curves("hopper-medium", table["hopper-medium"], tmp_path / "curves.png")
+    assert list(curves) == ["proto-sac", "frozen", "direct"]  # the paper's order; the τ ablation is not a method
+    c = curves["proto-sac"]  # seed s: π₀ 30, then 28 - s, 50, 80 + s, 80 + s at steps 100, 200, 300, 1000
+    assert c["steps"] == [0, 100, 200, 300, 1000] and c["n_runs"] == 3
+    assert c["center"] == pytest.approx([30.0, 27.0, 50.0, 81.0, 81.0])
+    sd = (2 / 3) ** 0.5  # population std of {s, s + 1, s + 2}
+    assert c["high"] == pytest.approx([30.0, 27.0 + sd, 50.0, 81.0 + sd, 81.0 + sd])
+    assert c["low"] == pytest.approx([30.0, 27.0 - sd, 50.0, 81.0 - sd, 81.0 - sd])
+    assert (tmp_path / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_locomotion_runner_publishes_a_finished_sweep_reproducibly(tmp_path):
