@@ -139,8 +139,11 @@ def rebuild_command(name: str, size: int | None, seed: int) -> str:
 
 
 def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: int = 100,
-                 behavior_root: Path | None = None, progress: bool = True, parts: dict | None = None):
+                 behavior_root: Path | None = None, progress: bool = True, parts: dict | None = None,
+                 checkpoint: Path | None = None):
     """Generate dataset ``name`` (numpy ``OfflineDataset``, metadata). Deterministic in (name, size, seed).
+
+    ``checkpoint``: a directory for the long (AntMaze) builds' progress, from which an interrupted build resumes.
 
     ``parts`` may hold already generated ``{"medium": (data, meta), "expert": (data, meta)}`` for medium-expert.
     """
@@ -153,7 +156,7 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
         from proto_brax.data.antmaze_data import make_antmaze_dataset
 
         return make_antmaze_dataset(env_name.removeprefix("antmaze-"), kind, size or g.default_size(env_name), seed,
-                                    num_envs, progress=progress)
+                                    num_envs, progress=progress, checkpoint=checkpoint)
     if kind == "cloned":
         return make_cloned(name, size or g.default_size(env_name), seed, num_envs, behavior_root, progress)
     if kind == "medium-expert":  # D4RL: the concatenation of the medium and expert datasets
@@ -341,7 +344,8 @@ def load_dataset(name_or_path: str | Path, size: int | None = None, seed: int = 
 
 @dataclasses.dataclass
 class Make:
-    """Generate a dataset into the cache (atomic write)."""
+    """Generate a dataset into the cache (atomic write). An interrupted AntMaze build resumes where it stopped when
+    the same command is run again (its progress is kept beside the dataset file, ``.NAME.npz.partial``)."""
 
     name: tyro.conf.Positional[str]
     size: int | None = None
@@ -415,8 +419,14 @@ def cmd_measure(a: Measure) -> list[dict]:
     return out
 
 
+def partial_path(path: Path) -> Path:
+    """Where an unfinished build of the dataset file ``path`` keeps its progress (``proto_brax.data.partial``)."""
+    return path.with_name(f".{path.name}.partial")
+
+
 def cmd_make(a: Make) -> Path:
     from proto_brax.data.dataset import save_npz
+    from proto_brax.data.partial import discard
 
     path = dataset_path(a.name, a.size, a.seed, a.cache_dir)
     if path.exists() and not a.force:
@@ -434,11 +444,13 @@ def cmd_make(a: Make) -> Path:
     if not generation_numerics_pinned():
         print(f"warning: {a.name} is generated under multi-threaded XLA, whose rounding differs (other episodes, "
               "another content hash): `python -m proto_brax.datasets make` pins one thread.", flush=True)
-    data, meta = make_dataset(a.name, a.size, a.seed, a.num_envs, parts=parts)
-    meta["seconds"] = time.time() - t0
+    partial = partial_path(path)
+    data, meta = make_dataset(a.name, a.size, a.seed, a.num_envs, parts=parts, checkpoint=partial)
+    meta["seconds"] = time.time() - t0  # of this process: a resumed build counts only its own part
     meta["xla_flags"] = os.environ.get("XLA_FLAGS", "")  # provenance: the numerics it was generated under
     path.parent.mkdir(parents=True, exist_ok=True)
     save_npz(path, data, meta)
+    discard(partial)
     r = meta["returns"]
     print(f"{a.name}: {meta['size']} transitions, {r['num_episodes']} episodes, return mean {r['mean']:.1f} "
           f"(min {r['min']:.1f}, max {r['max']:.1f}) in {meta['seconds']:.0f} s -> {path}")

@@ -22,6 +22,8 @@ episode goes on. The ant does not stop at the evaluation goal (``terminate_on_su
 from __future__ import annotations
 
 import functools
+import os
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -39,6 +41,7 @@ from proto_brax.antmaze import (
 )
 from proto_brax.data.dataset import Transition
 from proto_brax.data.maze_planner import controller_obs, make_planner
+from proto_brax.data.partial import run_segments
 
 KINDS = ("play", "diverse")
 EPISODE_LENGTH = 1000
@@ -133,9 +136,11 @@ def data_env(maze: str) -> tuple[AntMaze, object]:
 
 
 def make_antmaze_dataset(maze: str, kind: str, size: int, seed: int, num_envs: int, controller=None,
-                         progress: bool = True, episode_length: int = EPISODE_LENGTH):
+                         progress: bool = True, episode_length: int = EPISODE_LENGTH, checkpoint: Path | None = None):
     """(numpy ``OfflineDataset``, metadata) of ``antmaze-MAZE-KIND``; deterministic in (maze, kind, size, seed,
-    controller). ``controller`` = (snapshot metadata dict, nets, params); default: the last ``ant-goal`` snapshot."""
+    controller). ``controller`` = (snapshot metadata dict, nets, params); default: the last ``ant-goal`` snapshot.
+    ``checkpoint``: a directory where the build saves its progress after every segment and from which an
+    interrupted build with the same inputs resumes, bit for bit (``proto_brax.data.partial``)."""
     from tqdm import tqdm
 
     from proto_brax import __version__, envs
@@ -159,15 +164,16 @@ def make_antmaze_dataset(maze: str, kind: str, size: int, seed: int, num_envs: i
     eval_goal = jnp.asarray(cell_to_xy(MAZES[maze].goal_cell, layout), jnp.float32)
     policy = g.stochastic_policy(nets)
     key = jax.random.fold_in(jax.random.PRNGKey(seed), KINDS.index(kind))
-    state, parts = _init(env, cells_xy, eval_goal, num_envs, jax.random.fold_in(key, 0)), []
+    fingerprint = {"name": f"antmaze-{maze}-{kind}", "size": size, "seed": seed, "num_envs": num_envs,
+                   "episode_length": episode_length, "version": __version__, "controller": info,
+                   "controller_params": g.params_hash(params), "xla_flags": os.environ.get("XLA_FLAGS", "")}
     bar = tqdm(total=size, unit="tr", desc=f"antmaze-{maze}-{kind}", disable=not progress, dynamic_ncols=True)
-    for i in range(size // num_envs // segment):
-        tr, state = _segment(env, planner, cells_xy, eval_goal, policy, params, jax.random.fold_in(key, i + 1),
-                             segment, episode_length, state)
-        parts.append(jax.device_get(tr))
-        bar.update(segment * num_envs)
+    tr = run_segments(
+        size // num_envs // segment, lambda: _init(env, cells_xy, eval_goal, num_envs, jax.random.fold_in(key, 0)),
+        lambda i, state: _segment(env, planner, cells_xy, eval_goal, policy, params, jax.random.fold_in(key, i + 1),
+                                  segment, episode_length, state),
+        checkpoint, fingerprint, tick=lambda: bar.update(segment * num_envs))
     bar.close()
-    tr = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
     data = jax.device_get(flatten_env_major(jax.tree.map(jnp.asarray, tr)))
     data = jax.tree.map(lambda x: np.asarray(x, np.float32), data)
     meta = {"name": f"antmaze-{maze}-{kind}", "env": f"antmaze-{maze}", "backend": "mjx", "kind": kind,
