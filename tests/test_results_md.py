@@ -90,6 +90,8 @@ def test_run_scores_follow_the_sweep_definitions(published):
     # seed s: evaluations at 100, 200, 300, 1000 are 5 + s, 40, 70 + s, 70 + s; the first 10% is step 100 only
     assert [(r["initial"], r["drop"], r["final"]) for r in runs] == [(30.0, 5.0, 70.0), (30.0, 6.0, 71.0),
                                                                      (30.0, 7.0, 72.0)]
+    # late = the mean of the last 3 evaluations: (40 + 2 (70 + s)) / 3
+    assert [r["late"] for r in runs] == pytest.approx([60.0, 60 + 2 / 3, 60 + 4 / 3])
 
 
 def test_results_page_states_the_claims_with_numbers(published):
@@ -106,6 +108,9 @@ def test_results_page_states_the_claims_with_numbers(published):
     assert "| hopper-medium | -3.0 | -24.0 | -3.0 | -24.0 |" in text  # the lowest of each run is its early dip
     # (2) PROTO 80..82 against Frozen 60..62 on every run: the CIs separate; IQL was not run
     assert "PROTO ends above Frozen (τ = 0)** on 2 of 2 datasets" in text and "holds (CIs separate)" in text
+    # late: PROTO (50 + 2 (80 + s)) / 3 = 70, 70.7, 71.3 against Frozen (40 + 2 (60 + s)) / 3 = 53.3, 54, 54.7
+    assert ("With the mean of the last 3 evaluations of each run instead: 2 of 2 datasets, IQM PROTO 70.7 [" in text
+            and "vs 54.0 [" in text)
     assert "PROTO ends above IQL finetune:** not measured yet" in text
     assert "= 1.10" in text  # (3) 110 / 100
     assert "| proto-sac | 2 | 6 | 81.0 [80.2, 81.8] | 27.0 [" in text  # IQM of 80, 81, 82 twice
