@@ -63,12 +63,11 @@ def run_scores(sweep: Sweep) -> list[dict]:
         rows = [row for row in r.rows if not row.get("initial")]
         if not rows:
             continue
+        curve = [float(row["normalized_score"]) for row in rows]
         out.append({"seed": r.seed, "point": r.point, "initial": init[0]["normalized_score"] if init else math.nan,
-                    "drop": float(lowest_early_scores([rows])[0]), "final": float(rows[-1]["normalized_score"]),
-                    "late": float(np.mean([row["normalized_score"] for row in rows[-LATE_EVALS:]])),
-                    "lowest": float(min(row["normalized_score"] for row in rows)),
-                    "diverged": r.diverged, "steps": [row["step"] for row in rows],
-                    "curve": [float(row["normalized_score"]) for row in rows]})
+                    "drop": float(lowest_early_scores([rows])[0]), "final": curve[-1],
+                    "late": float(np.mean(curve[-LATE_EVALS:])), "lowest": min(curve),
+                    "diverged": r.diverged, "steps": [row["step"] for row in rows], "curve": curve})
     return out
 
 
@@ -199,6 +198,16 @@ def score_cells(runs: list[dict]) -> str:
             f"{ci_str(fin)} | {len(runs)}{bad}")
 
 
+def compare(table, pairs: list[str], other: str, key: str) -> tuple[int, str]:
+    """PROTO against ``other`` on the runs' ``key`` score over the datasets ``pairs``: on how many datasets its mean
+    is higher, and the IQMs with their verdict."""
+    p_all = [r[key] for d in pairs for r in table[d]["proto-sac"]["runs"]]
+    o_all = [r[key] for d in pairs for r in table[d][other]["runs"]]
+    wins = sum(np.nanmean([r[key] for r in table[d]["proto-sac"]["runs"]])
+               > np.nanmean([r[key] for r in table[d][other]["runs"]]) for d in pairs)
+    return wins, f"PROTO {ci_str(p_all)} vs {ci_str(o_all)}: {verdict(p_all, o_all)}"
+
+
 def claims(table, cost: dict | None) -> list[str]:
     out = ["## The paper's three claims on Brax", ""]
     # (1) initial drop: PROTO's lowest early score relative to π₀ against direct finetuning's
@@ -228,17 +237,10 @@ def claims(table, cost: dict | None) -> list[str]:
         if not pairs:
             out += [f"**(2) PROTO ends above {name}:** not measured yet (no dataset has both sweeps).", ""]
             continue
-        head = f"**(2) PROTO ends above {name}**"
-        for key, what in (("final", "final score"), ("late", f"mean of the last {LATE_EVALS} evaluations")):
-            p_all = [r[key] for d in pairs for r in table[d]["proto-sac"]["runs"]]
-            o_all = [r[key] for d in pairs for r in table[d][other]["runs"]]
-            wins = sum(np.nanmean([r[key] for r in table[d]["proto-sac"]["runs"]])
-                       > np.nanmean([r[key] for r in table[d][other]["runs"]]) for d in pairs)
-            head += (f" on {wins} of {len(pairs)} datasets (mean {what}); IQM over all runs PROTO {ci_str(p_all)} vs "
-                     f"{ci_str(o_all)}: {verdict(p_all, o_all)}." if key == "final" else
-                     f" With the {what} of each run instead: {wins} of {len(pairs)} datasets, IQM PROTO "
-                     f"{ci_str(p_all)} vs {ci_str(o_all)}: {verdict(p_all, o_all)}.")
-        out += [head, ""]
+        (wins, iqms), (late_wins, late_iqms) = (compare(table, pairs, other, key) for key in ("final", "late"))
+        out += [f"**(2) PROTO ends above {name}** on {wins} of {len(pairs)} datasets (mean final score); IQM over all "
+                f"runs {iqms}. With the mean of the last {LATE_EVALS} evaluations of each run instead: {late_wins} of "
+                f"{len(pairs)} datasets, IQM {late_iqms}.", ""]
     # (3) cost
     if cost and "proto-sac" in cost.get("results", {}):
         res = cost["results"]
