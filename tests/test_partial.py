@@ -46,9 +46,9 @@ def _segment(calls, stop_at=None):
     return segment
 
 
-def _build(tmp_path=None, fingerprint=None, stop_at=None):
+def _build(checkpoint=None, fingerprint=None, stop_at=None):
     calls, ticks = [], []
-    tr = run_segments(COUNT, _init, _segment(calls, stop_at), tmp_path, fingerprint, tick=lambda: ticks.append(1))
+    tr = run_segments(COUNT, _init, _segment(calls, stop_at), checkpoint, fingerprint, tick=lambda: ticks.append(1))
     return tr, calls, len(ticks)
 
 

@@ -15,6 +15,7 @@ from jax import lax
 
 from proto_brax import envs
 from proto_brax.data.dataset import Transition
+from proto_brax.data.partial import run_segments
 
 Policy = Callable[[jax.Array, jax.Array], jax.Array]  # (obs [n, obs], key) -> actions [n, act]
 ParamPolicy = Callable[[object, jax.Array, jax.Array], jax.Array]  # (params, obs, key) -> actions
@@ -228,14 +229,12 @@ def rollouts(env, horizon: int, policy: ParamPolicy, params, key, num_envs: int,
     policy, shapes), not once per ``params``."""
     if steps % segment:
         raise ValueError(f"steps ({steps}) must be a multiple of segment ({segment}).")
-    state = jax.vmap(lambda k: envs.env_reset(env, k))(jax.random.split(jax.random.fold_in(key, 0), num_envs))
-    parts = []
-    for i in range(steps // segment):
-        tr, state = _segment(env, horizon, policy, params, jax.random.fold_in(key, i + 1), num_envs, segment, state)
-        parts.append(jax.device_get(tr))
-        if bar is not None:
-            bar.update(segment * num_envs)
-    tr = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+    tr = run_segments(
+        steps // segment,
+        lambda: jax.vmap(lambda k: envs.env_reset(env, k))(jax.random.split(jax.random.fold_in(key, 0), num_envs)),
+        lambda i, state: _segment(env, horizon, policy, params, jax.random.fold_in(key, i + 1), num_envs, segment,
+                                  state),
+        tick=None if bar is None else lambda: bar.update(segment * num_envs))
     return jax.device_get(flatten_env_major(jax.tree.map(jnp.asarray, tr)))
 
 

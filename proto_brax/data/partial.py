@@ -18,6 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from proto_brax.files import atomic_write, write_text_atomic
@@ -40,7 +41,7 @@ def _canonical(fingerprint: dict | None) -> dict:
     return json.loads(json.dumps(fingerprint or {}, sort_keys=True, default=str))
 
 
-def _resume(directory: Path, fingerprint: dict, state, count: int):
+def _resume(directory: Path, fingerprint: dict | None, state, count: int):
     """(next index, state, transition leaves per segment) from ``directory``, or None with the reason printed."""
     fp = directory / "fingerprint.json"
     if not fp.exists():
@@ -63,7 +64,7 @@ def _resume(directory: Path, fingerprint: dict, state, count: int):
     except (OSError, ValueError, KeyError, json.JSONDecodeError) as e:  # a truncated or corrupt file
         print(f"{directory}: unreadable partial build ({e}); starting afresh", flush=True)
         return None
-    return start, jax.tree.unflatten(treedef, [jax.numpy.asarray(x) for x in leaves]), parts
+    return start, jax.tree.unflatten(treedef, [jnp.asarray(x) for x in leaves]), parts
 
 
 def run_segments(count: int, init: Callable[[], object], segment: Callable[[int, object], tuple[object, object]],
@@ -80,7 +81,7 @@ def run_segments(count: int, init: Callable[[], object], segment: Callable[[int,
     state, start, parts, treedef = init(), 0, [], None
     if checkpoint is not None:
         checkpoint = Path(checkpoint)
-        resumed = _resume(checkpoint, fingerprint or {}, state, count)
+        resumed = _resume(checkpoint, fingerprint, state, count)
         if resumed is None:
             shutil.rmtree(checkpoint, ignore_errors=True)
             checkpoint.mkdir(parents=True)
@@ -88,8 +89,9 @@ def run_segments(count: int, init: Callable[[], object], segment: Callable[[int,
         else:
             start, state, parts = resumed
             print(f"{checkpoint}: resuming at segment {start} of {count}", flush=True)
-    for _ in range(start if tick else 0):
-        tick()
+    if tick:
+        for _ in range(start):
+            tick()
     for i in range(start, count):
         tr, state = segment(i, state)
         leaves, treedef = jax.tree.flatten(jax.device_get(tr))
