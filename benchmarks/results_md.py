@@ -3,11 +3,13 @@
     python benchmarks/results_md.py       # after `python benchmarks/locomotion.py run` has published sweeps
 
 Reads every ``benchmarks/results/locomotion/DATASET/METHOD`` (summary.json, config.json, metrics.jsonl.gz as
-``benchmarks/locomotion.py`` publishes them), the bundles' offline scores (``checkpoints/pretrained``) and
-``benchmarks/results/methods_cost.json``; writes RESULTS.md (per-dataset tables, aggregates, the paper's three claims
-checked against the numbers) and ``aggregate.png`` (IQM learning curves over all datasets and seeds per method) next
-to the sweeps, and each dataset's ``curves.png`` (mean ± std over seeds per method against online steps). Every
-number is computed here from those files: rerunning this script regenerates the page.
+``benchmarks/locomotion.py`` publishes them), the bundles' offline scores (``checkpoints/pretrained``),
+``benchmarks/results/methods_cost.json`` and ``benchmarks/results/datasets.json`` (which dataset builds are
+reproducible: run ``python benchmarks/datasets_record.py`` first after new builds); writes RESULTS.md (per-dataset
+tables, aggregates, the paper's three claims checked against the numbers) and ``aggregate.png`` (IQM learning
+curves over all datasets and seeds per method) next to the sweeps, and each dataset's ``curves.png`` (mean ± std over
+seeds per method against online steps). Every number is computed here from those files: rerunning this script
+regenerates the page.
 
 Definitions (per run = one seed of one dataset × method): *initial* = π₀'s normalized score at step 0 (before any
 online step); *drop* = the lowest score within the first 10% of the online steps (the sweep's
@@ -35,6 +37,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from locomotion import ABLATIONS, DATASETS, ETA0, PAPER_METHODS, TAU0, method_of  # noqa: E402
 
 from proto_brax.checkpoints import bundle_dataset_record, write_json_atomic  # noqa: E402
+from proto_brax.envs import SINGLE_THREAD_XLA_FLAGS  # noqa: E402
 from proto_brax.files import atomic_write, write_text_atomic  # noqa: E402
 from proto_brax.report import Sweep, load_sweep  # noqa: E402
 from proto_brax.stats import iqm_ci  # noqa: E402
@@ -49,6 +52,7 @@ class Args:
     results: Path = ROOT / "benchmarks" / "results" / "locomotion"
     cost: Path = ROOT / "benchmarks" / "results" / "methods_cost.json"
     bundles: Path = ROOT / "checkpoints" / "pretrained"
+    record: Path = ROOT / "benchmarks" / "results" / "datasets.json"  # the dataset builds (datasets_record.py)
     out: Path = ROOT / "benchmarks" / "RESULTS.md"
 
 
@@ -145,13 +149,27 @@ def methods_in(table) -> list[str]:
     return ordered(m for per in table.values() for m in methods_of(per))
 
 
+def bundle_record(config: dict) -> dict:
+    """The sweep's ``dataset_vs_bundle`` record (sweeps before session 8 did not store it: derived the same way)."""
+    record = config.get("dataset_vs_bundle")
+    if record is None and config.get("checkpoint_metadata") and config.get("dataset_metadata"):
+        record = bundle_dataset_record(config["checkpoint_metadata"], config["dataset_metadata"])
+    return record or {}
+
+
 def buffer_data(config: dict) -> str:
     """Whether a sweep's dataset held the rows its bundle was pretrained on: "bundle's", "regenerated" (the same
     registered dataset with another content hash) or "–" (no bundle, or no dataset)."""
-    record = config.get("dataset_vs_bundle")  # sweeps before session 8 did not record it: derive it the same way
-    if record is None and config.get("checkpoint_metadata") and config.get("dataset_metadata"):
-        record = bundle_dataset_record(config["checkpoint_metadata"], config["dataset_metadata"])
-    return {True: "bundle's", False: "regenerated"}.get((record or {}).get("same_content"), "–")
+    return {True: "bundle's", False: "regenerated"}.get(bundle_record(config).get("same_content"), "–")
+
+
+def pinned_builds(record: Path) -> set[str]:
+    """Content hashes of the builds ``benchmarks/results/datasets.json`` saw generated under the pinned single XLA
+    thread (``datasets.generation_xla_flags``): the builds ``python -m proto_brax.datasets make`` reproduces."""
+    if not record.exists():
+        return set()
+    return {b["content_hash"] for entry in json.loads(record.read_text()).values() for b in entry["builds"]
+            if all(f in (b.get("xla_flags") or "").split() for f in SINGLE_THREAD_XLA_FLAGS)}
 
 
 def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
@@ -168,21 +186,31 @@ def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
     return lines + ["", f"![{dataset} learning curves](results/locomotion/{dataset}/curves.png)", ""]
 
 
-def provenance(table) -> list[str]:
-    """Which published sweeps finetuned with a regenerated copy of their bundle's dataset in the buffer."""
-    regen = [f"{d}/{m}" for d, per in sorted(table.items()) for m in methods_of(per)
-             if buffer_data(per[m]["config"]) == "regenerated"]
-    if not regen:
+def provenance(table, pinned: set[str]) -> list[str]:
+    """Which published sweeps finetuned with other rows of their bundle's dataset in the buffer than the bundle was
+    pretrained on, and which side of each pair is the reproducible (pinned) build."""
+    sides: dict[str, list[str]] = {"buffer": [], "bundle": [], "neither": []}
+    for d, per in sorted(table.items()):
+        for m in methods_of(per):
+            record = bundle_record(per[m]["config"])
+            if record.get("same_content") is False:
+                side = ("buffer" if record["bundle_content_hash"] in pinned else
+                        "bundle" if record["content_hash"] in pinned else "neither")
+                sides[side].append(f"{d}/{m}")
+    n = sum(map(len, sides.values()))
+    if not n:
         return []
-    return [f"**Buffer data:** {len(regen)} sweep(s) put a regenerated copy of their bundle's dataset in the buffer "
-            f"(column *buffer data*): {', '.join(regen)}. Same registered dataset, generator and behaviour "
-            "policies, other rows: those copies were generated before `python -m proto_brax.datasets make` pinned "
-            "one XLA thread (`datasets.generation_xla_flags`); multi-threaded XLA rounds differently, which "
-            "changes hopper's and walker2d's episodes (they end on falls). The pinned "
-            "generation reproduces the datasets the EQL and BC bundles were pretrained on (measured in session 9: "
-            "the hopper-, walker2d- and halfcheetah-medium content hashes equal the bundles' `dataset_content_hash`), "
-            "so sweeps run since then hold their bundle's rows; the hopper and walker2d IQL bundles were pretrained "
-            "on earlier, unpinned copies. The bundle (π₀, critic, reward scale) is the committed one either way.", ""]
+    which = {"buffer": "buffer generated before the pin, bundle's rows a pinned build",
+             "bundle": "bundle pretrained on rows generated before the pin, buffer a pinned build",
+             "neither": "neither side a recorded pinned build"}
+    parts = [f"{which[k]}: {', '.join(v)}" for k, v in sides.items() if v]
+    return [f"**Buffer data:** {n} sweep(s) put a regenerated copy of their bundle's dataset in the buffer "
+            "(column *buffer data*): the same registered dataset, generator and behaviour policies, other rows. "
+            "Copies generated before `python -m proto_brax.datasets make` pinned one XLA thread "
+            "(`datasets.generation_xla_flags`) cannot be regenerated: multi-threaded XLA rounds differently, which "
+            "changes hopper's and walker2d's episodes (they end on falls). By sweep: "
+            f"{'; '.join(parts)}. The bundle (π₀, critic, reward scale) is the committed one either way; "
+            "`benchmarks/results/datasets.json` lists every build (`python benchmarks/datasets_record.py`).", ""]
 
 
 def score_cells(runs: list[dict]) -> str:
@@ -380,7 +408,7 @@ def render(args: Args) -> str:
              "the same fraction of the run; normalized scores use this suite's Brax references "
              "(`proto_brax/envs.py`), so they are not comparable to D4RL numbers.", ""]
     lines += coverage(table)
-    lines += provenance(table)
+    lines += provenance(table, pinned_builds(args.record))
     lines += claims(table, cost)
     lines += ["## Aggregate over datasets", "", "`python benchmarks/results_md.py` over every published sweep "
               "(`benchmarks/results/locomotion/aggregate.json` holds the curves).", "",

@@ -76,7 +76,28 @@ def published(tmp_path_factory):
             "results": {"proto-sac": {"seconds_per_1e5_steps": 110.0, "ratio_to_proto_sac": 1.0},
                         "sac-scratch": {"seconds_per_1e5_steps": 100.0, "ratio_to_proto_sac": 100 / 110}}}
     (root / "cost.json").write_text(json.dumps(cost))
+    pinned = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"  # as datasets_record.py records
+    builds = {"walker2d-medium": {"builds": [{"content_hash": "ab", "xla_flags": pinned},
+                                             {"content_hash": "cd", "xla_flags": None}]}}
+    (root / "datasets.json").write_text(json.dumps(builds))
     return root
+
+
+def test_provenance_names_the_side_of_each_regenerated_pair_that_is_the_pinned_build():
+    mod = load_module()
+
+    def sweep(bundle_hash, buffer_hash):
+        meta, dmeta = {"dataset": "d", "dataset_content_hash": bundle_hash}, {"content_hash": buffer_hash}
+        return {"config": {"dataset_vs_bundle": bundle_dataset_record(meta, dmeta)}}
+
+    table = {"hopper-random": {"proto-sac": sweep("old", "new"), "iql": sweep("new", "new")},
+             "hopper-medium": {"frozen": sweep("pin", "old"), "direct": sweep("x", "y")}}
+    text = mod.provenance(table, pinned={"new", "pin"})[0]
+    assert text.startswith("**Buffer data:** 3 sweep(s)")  # hopper-random/iql holds its bundle's rows
+    assert ("By sweep: buffer generated before the pin, bundle's rows a pinned build: hopper-medium/frozen; bundle "
+            "pretrained on rows generated before the pin, buffer a pinned build: hopper-random/proto-sac; neither "
+            "side a recorded pinned build: hopper-medium/direct.") in text
+    assert mod.provenance({"hopper-random": {"iql": sweep("new", "new")}}, pinned=set()) == []
 
 
 def test_published_gzip_metrics_load_as_a_sweep(published):
@@ -97,7 +118,7 @@ def test_run_scores_follow_the_sweep_definitions(published):
 def test_results_page_states_the_claims_with_numbers(published):
     mod = load_module()
     args = mod.Args(results=published / "locomotion", cost=published / "cost.json", bundles=published / "none",
-                    out=published / "RESULTS.md")
+                    record=published / "datasets.json", out=published / "RESULTS.md")
     mod.main(args)
     text = args.out.read_text()
     # (1) drop relative to π₀: PROTO (28 - s) - 30 -> -3 on average; direct (5 + s) - 30 -> -24
@@ -114,7 +135,8 @@ def test_results_page_states_the_claims_with_numbers(published):
     assert "PROTO ends above IQL finetune:** not measured yet" in text
     assert "= 1.10" in text  # (3) 110 / 100
     assert "| proto-sac | 2 | 6 | 81.0 [80.2, 81.8] | 27.0 [" in text  # IQM of 80, 81, 82 twice
-    assert "**Buffer data:** 1 sweep(s) put a regenerated copy" in text and ": walker2d-medium/direct. " in text
+    assert "**Buffer data:** 1 sweep(s) put a regenerated copy" in text
+    assert "By sweep: buffer generated before the pin, bundle's rows a pinned build: walker2d-medium/direct. " in text
     assert "| direct | – | 30.0 | 6.0 | 71.0 ± 0.8 | 71.0 [70.0, 72.0] | 3 | regenerated |" in text
     assert "| frozen | – | 30.0 | 31.0 | 61.0 ± 0.8 | 61.0 [60.0, 62.0] | 3 | bundle's |" in text
     assert "**Coverage:** 6 of the 84 planned sweeps" in text  # 2 datasets × 3 methods; the ablation is not one
