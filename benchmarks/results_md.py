@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from locomotion import ABLATIONS, DATASETS, ETA0, PAPER_METHODS, TAU0, method_of  # noqa: E402
 
 from proto_brax.checkpoints import bundle_dataset_record, write_json_atomic  # noqa: E402
-from proto_brax.envs import SINGLE_THREAD_XLA_FLAGS  # noqa: E402
+from proto_brax.datasets import generation_numerics_pinned  # noqa: E402
 from proto_brax.files import atomic_write, write_text_atomic  # noqa: E402
 from proto_brax.report import Sweep, load_sweep  # noqa: E402
 from proto_brax.stats import iqm_ci  # noqa: E402
@@ -169,7 +169,7 @@ def pinned_builds(record: Path) -> set[str]:
     if not record.exists():
         return set()
     return {b["content_hash"] for entry in json.loads(record.read_text()).values() for b in entry["builds"]
-            if all(f in (b.get("xla_flags") or "").split() for f in SINGLE_THREAD_XLA_FLAGS)}
+            if generation_numerics_pinned(b.get("xla_flags") or "")}
 
 
 def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:

@@ -121,11 +121,13 @@ def generation_xla_flags(flags: str | None = None, mjx: bool = False) -> str:
     return envs.single_thread_mjx_xla_flags(kept) if mjx else envs.single_thread_xla_flags(kept)
 
 
-def generation_numerics_pinned() -> bool:
-    """Whether this process runs under ``generation_xla_flags`` (its thread flags, as jax read them at start)."""
+def generation_numerics_pinned(flags: str | None = None) -> bool:
+    """Whether ``flags`` hold ``generation_xla_flags``' thread flags; None = this process's XLA_FLAGS (as jax read
+    them at start). Also read on a build's recorded ``xla_flags`` (``benchmarks/results_md.py``)."""
     from proto_brax.envs import SINGLE_THREAD_XLA_FLAGS
 
-    return all(f in os.environ.get("XLA_FLAGS", "").split() for f in SINGLE_THREAD_XLA_FLAGS)
+    flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
+    return all(f in flags.split() for f in SINGLE_THREAD_XLA_FLAGS)
 
 
 def make_argv(name: str, size: int | None, seed: int) -> list[str]:
