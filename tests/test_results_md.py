@@ -117,10 +117,19 @@ def test_run_scores_follow_the_sweep_definitions(published):
 
 def test_results_page_states_the_claims_with_numbers(published):
     mod = load_module()
+    readme = published / "README.md"
+    readme.write_text(f"intro\n{mod.README_BEGIN}\nstale numbers\n{mod.README_END}\nafter\n")
     args = mod.Args(results=published / "locomotion", cost=published / "cost.json", bundles=published / "none",
-                    record=published / "datasets.json", out=published / "RESULTS.md")
+                    record=published / "datasets.json", out=published / "RESULTS.md", readme=readme)
     mod.main(args)
     text = args.out.read_text()
+    # the README's block: RESULTS.md's coverage and claim paragraphs, nothing else of the README touched
+    head, block = readme.read_text().split(mod.README_BEGIN + "\n")
+    block, tail = block.split(mod.README_END + "\n")
+    assert head == "intro\n" and tail == "after\n" and "stale" not in block
+    paragraphs = block.strip().split("\n\n")
+    assert [p[:6] for p in paragraphs] == ["**Cove", "**(1) ", "**(2) ", "**(2) ", "**(3) "]
+    assert all(p in text for p in paragraphs)
     # (1) drop relative to π₀: PROTO (28 - s) - 30 -> -3 on average; direct (5 + s) - 30 -> -24
     assert "PROTO's drop is smaller on 2 of 2 datasets" in text
     # IQM of drops: PROTO -2, -3, -4 (twice) -> -3; direct -25, -24, -23 -> -24; the CIs separate
@@ -154,6 +163,17 @@ def test_results_page_states_the_claims_with_numbers(published):
     for dataset in ("hopper-medium", "walker2d-medium"):  # each dataset's learning curves, linked from its section
         assert (published / "locomotion" / dataset / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert f"![{dataset} learning curves](results/locomotion/{dataset}/curves.png)" in text
+
+
+def test_a_readme_without_the_markers_is_refused_before_anything_is_written(published, tmp_path):
+    mod = load_module()
+    readme = tmp_path / "README.md"
+    readme.write_text(f"{mod.README_END}\nno begin marker\n{mod.README_BEGIN}\n")  # the markers out of order
+    args = mod.Args(results=published / "locomotion", cost=published / "cost.json", bundles=published / "none",
+                    record=published / "datasets.json", out=tmp_path / "RESULTS.md", readme=readme)
+    with pytest.raises(SystemExit, match="lacks the lines"):
+        mod.main(args)
+    assert not args.out.exists() and "no begin marker" in readme.read_text()
 
 
 def test_dataset_curves_are_mean_and_std_over_seeds_from_pi0(published, tmp_path):
@@ -225,7 +245,7 @@ def test_a_dataset_free_sweep_is_shared_by_its_envs_datasets_and_counted_once(tm
     assert (copy / "metrics.jsonl.gz").read_bytes() == (results / "hopper-medium" / "sac-scratch" /
                                                         "metrics.jsonl.gz").read_bytes()
     out = tmp_path / "RESULTS.md"
-    mod.main(mod.Args(results=results, cost=tmp_path / "none.json", bundles=tmp_path / "none", out=out))
+    mod.main(mod.Args(results=results, cost=tmp_path / "none.json", bundles=tmp_path / "none", out=out, readme=None))
     text = out.read_text()
     assert "| sac-scratch | 1 | 3 | 11.0 [" in text and "| proto-sac | 2 | 6 |" in text
     assert text.count("| sac-scratch | – | 30.0 | 2.0 | 11.0 ± 0.8 |") == 2  # one row in each hopper table
