@@ -397,23 +397,23 @@ def coverage(table) -> list[str]:
             f"{', '.join(none) or 'none'}. Every claim below is about the published sweeps only.", ""]
 
 
-def readme_block(table, cost: dict | None) -> list[str]:
-    """The README's summary: the coverage and each claim's verdict paragraph as RESULTS.md states them (no tables),
-    so that the README cannot go stale against the page."""
-    return coverage(table) + [line + "\n" for line in claims(table, cost) if line.startswith("**(")]
+def readme_block(page_lines: list[str]) -> str:
+    """The README's summary from RESULTS.md's own coverage and claims lines: their bold paragraphs (the coverage and
+    each claim's verdict), without headings or tables, so that the README cannot go stale against the page."""
+    return "\n\n".join(line for line in page_lines if line.startswith("**"))
 
 
-def splice(text: str, block: list[str], path: Path) -> str:
+def splice(text: str, block: str, path: Path) -> str:
     """``text`` with what lies between its README_BEGIN and README_END lines replaced by ``block``."""
     head, sep, rest = text.partition(README_BEGIN + "\n")
     _, sep2, tail = rest.partition(README_END + "\n")
     if not (sep and sep2):
         raise SystemExit(f"{path} lacks the lines {README_BEGIN!r} and {README_END!r} (in this order) around its "
                          "results summary: add them, or pass --readme None to leave the README alone.")
-    return head + sep + "\n".join(block).rstrip() + "\n" + sep2 + tail
+    return head + sep + block + "\n" + sep2 + tail
 
 
-def render(args: Args) -> tuple[str, list[str]]:
+def render(args: Args) -> tuple[str, str]:
     """RESULTS.md's text and the README's summary block."""
     table = collect(args)
     cost = json.loads(args.cost.read_text()) if args.cost.exists() else None
@@ -429,9 +429,10 @@ def render(args: Args) -> tuple[str, list[str]]:
              f"Online budget: {', '.join(f'{b:,}' for b in budgets)} steps per run (the paper: 10⁶), α annealed over "
              "the same fraction of the run; normalized scores use this suite's Brax references "
              "(`proto_brax/envs.py`), so they are not comparable to D4RL numbers.", ""]
-    lines += coverage(table)
+    covered, claimed = coverage(table), claims(table, cost)  # once: the page and the README's block share them
+    lines += covered
     lines += provenance(table, pinned_builds(args.record))
-    lines += claims(table, cost)
+    lines += claimed
     lines += ["## Aggregate over datasets", "", "`python benchmarks/results_md.py` over every published sweep "
               "(`benchmarks/results/locomotion/aggregate.json` holds the curves).", "",
               "![aggregate](results/locomotion/aggregate.png)", "",
@@ -450,7 +451,7 @@ def render(args: Args) -> tuple[str, list[str]]:
         lines += dataset_table(d, table[d])
     lines += ablation_tables(table)
     lines += cost_table(cost)
-    return "\n".join(lines).rstrip() + "\n", readme_block(table, cost)
+    return "\n".join(lines).rstrip() + "\n", readme_block(covered + claimed)
 
 
 def main(args: Args) -> None:
