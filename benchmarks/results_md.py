@@ -403,14 +403,15 @@ def readme_block(page_lines: list[str]) -> str:
     return "\n\n".join(line for line in page_lines if line.startswith("**"))
 
 
-def splice(text: str, block: str, path: Path) -> str:
-    """``text`` with what lies between its README_BEGIN and README_END lines replaced by ``block``."""
-    head, sep, rest = text.partition(README_BEGIN + "\n")
+def readme_frame(path: Path) -> tuple[str, str]:
+    """The README's text up to and including its README_BEGIN line, and from its README_END line on: the summary
+    block goes between them (``head + block + "\n" + tail``)."""
+    head, sep, rest = path.read_text().partition(README_BEGIN + "\n")
     _, sep2, tail = rest.partition(README_END + "\n")
     if not (sep and sep2):
         raise SystemExit(f"{path} lacks the lines {README_BEGIN!r} and {README_END!r} (in this order) around its "
                          "results summary: add them, or pass --readme None to leave the README alone.")
-    return head + sep + block + "\n" + sep2 + tail
+    return head + sep, sep2 + tail
 
 
 def render(args: Args) -> tuple[str, str]:
@@ -455,12 +456,13 @@ def render(args: Args) -> tuple[str, str]:
 
 
 def main(args: Args) -> None:
+    # Checked before rendering, which writes the PNGs and aggregate.json: a README without its markers leaves every
+    # output as it was, rather than new plots beside a stale RESULTS.md.
+    frame = readme_frame(args.readme) if args.readme is not None else None
     text, block = render(args)
-    if args.readme is not None:  # checked before anything is written: a missing marker leaves both files as they were
-        readme = splice(args.readme.read_text(), block, args.readme)
     write_text_atomic(args.out, text)
-    if args.readme is not None:
-        write_text_atomic(args.readme, readme)
+    if frame is not None:
+        write_text_atomic(args.readme, frame[0] + block + "\n" + frame[1])
     print(text)
 
 

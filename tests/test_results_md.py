@@ -5,6 +5,7 @@ from __future__ import annotations
 import gzip
 import importlib.util
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -169,11 +170,14 @@ def test_a_readme_without_the_markers_is_refused_before_anything_is_written(publ
     mod = load_module()
     readme = tmp_path / "README.md"
     readme.write_text(f"{mod.README_END}\nno begin marker\n{mod.README_BEGIN}\n")  # the markers out of order
-    args = mod.Args(results=published / "locomotion", cost=published / "cost.json", bundles=published / "none",
+    results = tmp_path / "locomotion"  # a copy without the plots, to see that none is written
+    shutil.copytree(published / "locomotion", results, ignore=shutil.ignore_patterns("*.png", "aggregate.json"))
+    args = mod.Args(results=results, cost=published / "cost.json", bundles=published / "none",
                     record=published / "datasets.json", out=tmp_path / "RESULTS.md", readme=readme)
     with pytest.raises(SystemExit, match="lacks the lines"):
         mod.main(args)
     assert not args.out.exists() and "no begin marker" in readme.read_text()
+    assert not list(results.rglob("*.png")) and not (results / "aggregate.json").exists()
 
 
 def test_dataset_curves_are_mean_and_std_over_seeds_from_pi0(published, tmp_path):
