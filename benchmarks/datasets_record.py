@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT))
 from proto_brax import datasets  # noqa: E402
 from proto_brax.checkpoints import write_json_atomic  # noqa: E402
 from proto_brax.data.generate import dataset_names  # noqa: E402
+from proto_brax.envs import host_cpu  # noqa: E402
 
 
 @dataclasses.dataclass
@@ -54,6 +55,8 @@ def bundles_by_content(root: Path) -> dict[str, list[str]]:
 def build_entry(meta: dict) -> dict:
     """The part of a dataset's metadata that identifies and summarizes one build."""
     entry = {k: meta.get(k) for k in ("content_hash", "size", "kind", "env", "seed", "seconds", "xla_flags")}
+    if "cpu" in meta:  # builds since the CPU was recorded (envs.host_cpu): another CPU can build other rows
+        entry["cpu"] = meta["cpu"]
     if "stats" in meta:  # AntMaze: runs, success, cut short, rewarded transitions
         entry["stats"] = meta["stats"]
     else:
@@ -82,7 +85,8 @@ def main(args: Args) -> dict:
         if meta and meta.get("name") in dataset_names():
             sweep = f"{config.parent.parent.name}/{config.parent.name}"
             merge(record, meta["name"], build_entry(meta), {"sweep": sweep})
-    seen = {"date": datetime.date.today().isoformat(), "machine": f"{platform.node()} ({os.cpu_count()} cpus)"}
+    seen = {"date": datetime.date.today().isoformat(),
+            "machine": f"{platform.node()} ({os.cpu_count()} cpus: {host_cpu()})"}
     for name in dataset_names():
         path = datasets.dataset_path(name, None, 0, args.cache_dir)
         if not path.exists():

@@ -194,26 +194,30 @@ def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
 def provenance(table, pinned: set[str]) -> list[str]:
     """Which published sweeps finetuned with other rows of their bundle's dataset in the buffer than the bundle was
     pretrained on, and which side of each pair is the reproducible (pinned) build."""
-    sides: dict[str, list[str]] = {"buffer": [], "bundle": [], "neither": []}
+    sides: dict[str, list[str]] = {"buffer": [], "bundle": [], "both": [], "neither": []}
     for d, per in sorted(table.items()):
         for m in methods_of(per):
             record = bundle_record(per[m]["config"])
             if record.get("same_content") is False:
-                side = ("buffer" if record["bundle_content_hash"] in pinned else
-                        "bundle" if record["content_hash"] in pinned else "neither")
+                bundle, buffer = record["bundle_content_hash"] in pinned, record["content_hash"] in pinned
+                side = {(True, False): "buffer", (False, True): "bundle", (True, True): "both"}.get((bundle, buffer),
+                                                                                                   "neither")
                 sides[side].append(f"{d}/{m}")
     n = sum(map(len, sides.values()))
     if not n:
         return []
     which = {"buffer": "buffer generated before the pin, bundle's rows a pinned build",
              "bundle": "bundle pretrained on rows generated before the pin, buffer a pinned build",
+             "both": "both sides pinned builds, made on other CPUs",
              "neither": "neither side a recorded pinned build"}
     parts = [f"{which[k]}: {', '.join(v)}" for k, v in sides.items() if v]
     return [f"**Buffer data:** {n} sweep(s) put a regenerated copy of their bundle's dataset in the buffer "
             "(column *buffer data*): the same registered dataset, generator and behaviour policies, other rows. "
             "Copies generated before `python -m proto_brax.datasets make` pinned one XLA thread "
             "(`datasets.generation_xla_flags`) cannot be regenerated: multi-threaded XLA rounds differently, which "
-            "changes hopper's and walker2d's episodes (they end on falls). By sweep: "
+            "changes hopper's and walker2d's episodes (they end on falls); and XLA compiles for the host CPU, so a "
+            "pinned build is reproduced only on a CPU like its own (`envs.host_cpu`, recorded since 2026-12-04: an "
+            "AVX-512 machine built other rows than two earlier machines whose builds agreed). By sweep: "
             f"{'; '.join(parts)}. The bundle (π₀, critic, reward scale) is the committed one either way; "
             "`benchmarks/results/datasets.json` lists every build (`python benchmarks/datasets_record.py`).", ""]
 

@@ -13,8 +13,10 @@ Kinds (per env, D4RL's definitions adapted to the suite's own SAC runs, ``checkp
 
 Each dataset is ``size`` transitions from ``num_envs`` envs run side by side (episodes stay contiguous per env); time
 limits are ``timeouts``, true terminations ``terminals``. Same name, size and seed ⇒ identical arrays (checked by the
-content hash in the metadata), given the same XLA threading: ``make`` generates with one XLA thread
-(``generation_xla_flags``), since multi-threaded rounding gives hopper and walker2d other episodes.
+content hash in the metadata), given the same XLA threading and CPU: ``make`` generates with one XLA thread
+(``generation_xla_flags``), since multi-threaded rounding gives hopper and walker2d other episodes, and records the
+CPU (``envs.host_cpu``): XLA compiles for the host CPU, and another CPU can build other episodes (an AVX-512 machine
+did, against two earlier AVX2 machines that agreed).
 
     python -m proto_brax.datasets list
     python -m proto_brax.datasets make hopper-medium [--size N] [--seed S]
@@ -112,8 +114,9 @@ def generation_xla_flags(flags: str | None = None, mjx: bool = False) -> str:
     single-threaded generation gave different content hashes (128 vs 127 episodes), single-threaded generation gave
     the same hash twice and again with the CPU capped at AVX2 (``--xla_cpu_max_isa=AVX2``). Single-threaded,
     halfcheetah-medium reproduced the hash its bundle recorded on an earlier machine; hopper/walker2d-medium did not
-    reproduce the hashes of caches built on earlier machines without this pin. Pure: returns the value for an entry
-    point to set before jax starts."""
+    reproduce the hashes of caches built on earlier machines without this pin. The pin does not carry across CPUs
+    (``envs.host_cpu``, recorded beside the flags): an AVX-512 machine built other rows than two earlier machines
+    (FACTS.md's kind: AVX2) that agreed. Pure: returns the value for an entry point to set before jax starts."""
     from proto_brax import envs
 
     flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
@@ -427,6 +430,7 @@ def partial_path(path: Path) -> Path:
 
 
 def cmd_make(a: Make) -> Path:
+    from proto_brax import envs
     from proto_brax.data.dataset import save_npz
     from proto_brax.data.partial import discard
 
@@ -449,7 +453,8 @@ def cmd_make(a: Make) -> Path:
     partial = partial_path(path)
     data, meta = make_dataset(a.name, a.size, a.seed, a.num_envs, parts=parts, checkpoint=partial)
     meta["seconds"] = time.time() - t0  # of this process: a resumed build counts only its own part
-    meta["xla_flags"] = os.environ.get("XLA_FLAGS", "")  # provenance: the numerics it was generated under
+    meta["xla_flags"] = os.environ.get("XLA_FLAGS", "")  # provenance: the numerics it was generated under,
+    meta["cpu"] = envs.host_cpu()  # and the CPU XLA compiled them for (another CPU rounds differently)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_npz(path, data, meta)
     discard(partial)

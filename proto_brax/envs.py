@@ -222,6 +222,36 @@ def single_thread_mjx_xla_flags(flags: str | None = None) -> str:
     return mjx_xla_flags(single_thread_xla_flags(flags))
 
 
+# Widest vector extension first: the one XLA's CPU code generator targets (/proc/cpuinfo flag names; arm: Features).
+_VECTOR_ISAS = ("avx512f", "avx2", "avx", "sse4_2", "sve2", "sve", "asimd")
+
+
+def host_cpu(cpuinfo: str | None = None) -> str:
+    """The CPU XLA compiles for, e.g. ``"AMD EPYC, x86_64 avx512f"``: model name, architecture, widest vector ISA.
+
+    Why it is recorded: XLA generates code for the host CPU, and the same program rounds differently on another CPU.
+    Measured: ant-random (10⁶ rows, one XLA thread) built on an AVX-512 AMD EPYC gave 27070 episodes (content
+    83a9917a…) where two earlier machines (FACTS.md's kind: AVX2) both gave 27004 (71b80997…); capping XLA at AVX2 there
+    (``--xla_cpu_max_isa=AVX2``) gave a third build (26722 episodes, 2cd6e7d4…). ``cpuinfo`` defaults to
+    /proc/cpuinfo's text (absent off Linux: the model is then ``platform.processor()``)."""
+    import platform
+
+    if cpuinfo is None:
+        try:
+            with open("/proc/cpuinfo") as f:
+                cpuinfo = f.read()
+        except OSError:
+            cpuinfo = ""
+    fields: dict[str, str] = {}
+    for line in cpuinfo.splitlines():  # the first processor's block is enough: the cores of one host match
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    model = fields.get("model name") or platform.processor()
+    flags = set((fields.get("flags") or fields.get("Features") or "").split())
+    isa = next((i for i in _VECTOR_ISAS if i in flags), "")
+    return ", ".join(p for p in (model, f"{platform.machine()} {isa}".strip()) if p)
+
+
 def machine_info() -> dict:
     """The header a benchmark records about where it ran (import after XLA_FLAGS is set: it initializes jax)."""
     import platform
@@ -229,7 +259,7 @@ def machine_info() -> dict:
     import jax
     import mujoco
 
-    return {"python": platform.python_version(), "cpus": os.cpu_count(), "jax": jax.__version__,
+    return {"python": platform.python_version(), "cpus": os.cpu_count(), "cpu": host_cpu(), "jax": jax.__version__,
             "mujoco": mujoco.__version__, "xla_flags": os.environ.get("XLA_FLAGS", ""),
             "loadavg_start": os.getloadavg()}
 

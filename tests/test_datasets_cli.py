@@ -8,7 +8,7 @@ import jax
 import numpy as np
 import pytest
 
-from proto_brax import datasets
+from proto_brax import datasets, envs
 from proto_brax.data import generate as g
 from proto_brax.data.dataset import CorruptDatasetError, content_hash, episode_returns, load_npz
 
@@ -158,6 +158,20 @@ def test_generation_pins_one_xla_thread_whatever_the_caller_set():
     assert datasets.generation_xla_flags(flags) == flags  # idempotent
 
 
+def test_host_cpu_names_the_model_and_the_widest_vector_isa(monkeypatch):
+    import platform
+
+    monkeypatch.setattr(platform, "machine", lambda: "x86_64")
+    zen4 = "processor\t: 0\nmodel name\t: AMD EPYC\nflags\t\t: fpu sse4_2 avx avx2 fma avx512f avx512bw\n\n" \
+           "processor\t: 1\nmodel name\t: other\nflags\t\t: fpu\n"  # the first core's block is read
+    assert envs.host_cpu(zen4) == "AMD EPYC, x86_64 avx512f"
+    assert envs.host_cpu("model name\t: AMD EPYC\nflags\t\t: sse4_2 avx fma avx2\n") == "AMD EPYC, x86_64 avx2"
+    monkeypatch.setattr(platform, "machine", lambda: "aarch64")
+    monkeypatch.setattr(platform, "processor", lambda: "")
+    assert envs.host_cpu("processor\t: 0\nFeatures\t: fp asimd sve\n") == "aarch64 sve"
+    assert envs.host_cpu("") == "aarch64"
+
+
 def test_cli_make_info_list_and_corruption(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
     args = ["--size", "2000", "--num-envs", "20", "--cache-dir", str(tmp_path)]
@@ -166,6 +180,7 @@ def test_cli_make_info_list_and_corruption(tmp_path, capsys, monkeypatch):
     assert path.exists() and not list(tmp_path.glob(".*tmp"))
     _, meta = load_npz(path)
     assert meta["xla_flags"] == "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"  # as generated
+    assert meta["cpu"] == envs.host_cpu()  # and on which CPU
     datasets.main(["info", "point-random", "--size", "2000", "--cache-dir", str(tmp_path)])
     out = capsys.readouterr().out
     assert "episodes" in out and "return mean" in out

@@ -92,12 +92,14 @@ def test_provenance_names_the_side_of_each_regenerated_pair_that_is_the_pinned_b
         return {"config": {"dataset_vs_bundle": bundle_dataset_record(meta, dmeta)}}
 
     table = {"hopper-random": {"proto-sac": sweep("old", "new"), "iql": sweep("new", "new")},
-             "hopper-medium": {"frozen": sweep("pin", "old"), "direct": sweep("x", "y")}}
+             "hopper-medium": {"frozen": sweep("pin", "old"), "direct": sweep("x", "y")},
+             "ant-random": {"iql": sweep("pin", "new")}}  # two pinned builds of other CPUs
     text = mod.provenance(table, pinned={"new", "pin"})[0]
-    assert text.startswith("**Buffer data:** 3 sweep(s)")  # hopper-random/iql holds its bundle's rows
+    assert text.startswith("**Buffer data:** 4 sweep(s)")  # hopper-random/iql holds its bundle's rows
     assert ("By sweep: buffer generated before the pin, bundle's rows a pinned build: hopper-medium/frozen; bundle "
-            "pretrained on rows generated before the pin, buffer a pinned build: hopper-random/proto-sac; neither "
-            "side a recorded pinned build: hopper-medium/direct.") in text
+            "pretrained on rows generated before the pin, buffer a pinned build: hopper-random/proto-sac; both sides "
+            "pinned builds, made on other CPUs: ant-random/iql; neither side a recorded pinned build: "
+            "hopper-medium/direct.") in text
     assert mod.provenance({"hopper-random": {"iql": sweep("new", "new")}}, pinned=set()) == []
 
 
