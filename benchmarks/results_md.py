@@ -299,19 +299,35 @@ def ablation_tables(table) -> list[str]:
             continue
         flag, others = ABLATIONS[ablation]
         values = sorted({default, *others})
-        rows = []
+        rows, overlap, apart = [], 0, []
         for d in datasets:
             runs = table[d][ablation]["runs"] + table[d].get("proto-sac", {}).get("runs", [])
+            at = {v: [r for r in runs if math.isclose(r["point"][axis], v, rel_tol=1e-9)] for v in values}
             for v in values:
-                rs = [r for r in runs if math.isclose(r["point"][axis], v, rel_tol=1e-9)]
-                rows.append(f"| {d} | {v:g}{' (default)' if v == default else ''} | {score_cells(rs)} |")
+                rows.append(f"| {d} | {v:g}{' (default)' if v == default else ''} | {score_cells(at[v])} |")
+            if not at[default]:
+                continue
+            # does the choice matter: is any value's final IQM CI separate from the default's?
+            _, dlo, dhi = ci([r["final"] for r in at[default]])
+            for v in others:
+                if at[v]:
+                    _, lo, hi = ci([r["final"] for r in at[v]])
+                    if lo > dhi or hi < dlo:
+                        apart.append(f"{d} {name} {v:g} ({ci_str([r['final'] for r in at[v]])} vs "
+                                     f"{ci_str([r['final'] for r in at[default]])})")
+                    else:
+                        overlap += 1
+        reading = (f"**Reading:** on {overlap} of {overlap + len(apart)} (dataset, {name}) pairs the final IQM's 95% "
+                   "CI overlaps the default's" + (f"; separate: {'; '.join(apart)}." if apart else
+                                                  f": at these seed counts no {name} in the range is told apart "
+                                                  "from the default; the point estimates differ (table)."))
         scale = f" = {{{', '.join(f'{v / TAU0:g}' for v in values)}}} × τ₀" if axis == 0 else ""
         out += [f"### {name} ∈ {{{', '.join(f'{v:g}' for v in values)}}}{scale}", "",
                 f"`python benchmarks/locomotion.py run --methods proto-sac {ablation}`: PROTO-SAC with "
                 f"`{flag} {' '.join(f'{v:g}' for v in others)}` in one sweep; the default value is the proto-sac "
                 "sweep.",
                 "", f"| dataset | {name} | initial (π₀) | lowest in first 10% | final mean ± std | final IQM [95% CI] "
-                "| seeds |", "|---|---|---|---|---|---|---|", *rows, ""]
+                "| seeds |", "|---|---|---|---|---|---|---|", *rows, "", reading, ""]
     return ["## Ablations (the paper's appendix)", "", *out] if out else []
 
 

@@ -157,6 +157,9 @@ def test_results_page_states_the_claims_with_numbers(published):
     assert "| hopper-medium | 0.0025 | 30.0 | 20.0 | 83.5 ± 0.8 | 83.5 [" in text
     assert "| hopper-medium | 0.005 (default) | 30.0 | 27.0 | 81.0 ± 0.8 | 81.0 [" in text
     assert "| hopper-medium | 0.01 | 30.0 | 20.0 | 91.0 ± 0.8 | 91.0 [" in text
+    # seeds 82.5..84.5 and 90..92 against the default's 80..82: both CIs lie above the default's
+    assert "**Reading:** on 0 of 2 (dataset, τ) pairs the final IQM's 95% CI overlaps the default's; separate: " \
+        "hopper-medium τ 0.0025 (83.5 [" in text and "; hopper-medium τ 0.01 (91.0 [" in text
     assert "= {0.5, 1, 2} × τ₀" in text and "| ablate-tau |" not in text and "η ∈" not in text
     png = published / "locomotion" / "aggregate.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -298,3 +301,19 @@ def test_datasets_record_keeps_each_build_once_with_where_it_was_seen(tmp_path):
     assert build["bundles"] == ["hopper-medium/eql"] and build["returns"]["num_episodes"] == 2
     assert rec_mod.merge(rec, "hopper-medium", {**build, "content_hash": "cd" * 32}, {"date": "x"})  # another build
     assert len(rec["hopper-medium"]["builds"]) == 2
+
+
+def test_ablation_reading_counts_values_whose_final_ci_overlaps_the_defaults():
+    """η 0.8 and 1.0 spread over the default's finals (CIs overlap); the verdict names no value as separate."""
+    mod = load_module()
+
+    def run(eta: float, final: float) -> dict:
+        return {"point": (mod.TAU0, eta, 1.0), "initial": 30.0, "drop": 25.0, "final": final}
+
+    table = {"hopper-medium": {"proto-sac": {"runs": [run(mod.ETA0, f) for f in (80.0, 81.0, 82.0)]},
+                               "ablate-eta": {"runs": [run(e, f) for e in (0.8, 1.0) for f in (78.0, 81.0, 84.0)]}}}
+    text = "\n".join(mod.ablation_tables(table))
+    assert "| hopper-medium | 0.9 (default) | 30.0 | 25.0 | 81.0 ± 0.8 | 81.0 [" in text
+    assert ("**Reading:** on 2 of 2 (dataset, η) pairs the final IQM's 95% CI overlaps the default's: at these seed "
+            "counts no η in the range is told apart from the default") in text
+    assert "τ ∈" not in text and "separate:" not in text
