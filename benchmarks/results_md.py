@@ -126,9 +126,13 @@ def ci(values) -> tuple[float, float, float]:
     return iqm_ci([v for v in values if math.isfinite(v)])
 
 
-def ci_str(values) -> str:
-    m, lo, hi = ci(values)
+def ci_text(iqm_lo_hi: tuple[float, float, float]) -> str:
+    m, lo, hi = iqm_lo_hi
     return f"{fmt(m)} [{fmt(lo)}, {fmt(hi)}]"
+
+
+def ci_str(values) -> str:
+    return ci_text(ci(values))
 
 
 def verdict(proto, other) -> str:
@@ -308,13 +312,13 @@ def ablation_tables(table) -> list[str]:
             if not at[default]:
                 continue
             # does the choice matter: is any value's final IQM CI separate from the default's?
-            _, dlo, dhi = ci([r["final"] for r in at[default]])
+            cis = {v: ci([r["final"] for r in at[v]]) for v in values if at[v]}
+            _, dlo, dhi = cis[default]
             for v in others:
-                if at[v]:
-                    _, lo, hi = ci([r["final"] for r in at[v]])
+                if v in cis:
+                    _, lo, hi = cis[v]
                     if lo > dhi or hi < dlo:
-                        apart.append(f"{d} {name} {v:g} ({ci_str([r['final'] for r in at[v]])} vs "
-                                     f"{ci_str([r['final'] for r in at[default]])})")
+                        apart.append(f"{d} {name} {v:g} ({ci_text(cis[v])} vs {ci_text(cis[default])})")
                     else:
                         overlap += 1
         reading = (f"**Reading:** on {overlap} of {overlap + len(apart)} (dataset, {name}) pairs the final IQM's 95% "
