@@ -84,13 +84,14 @@ def sac_actor_loss(actor, critic, pibar, log_alpha_sac, obs, eps, alpha, clip):
     return np.mean(np.exp(log_alpha_sac) * logp + alpha * kl - q)
 
 
-def td3_critic_loss(actor_target, critic, critic_target, pibar, batch, noise, alpha, gamma, noise_clip, backup):
+def td3_critic_loss(actor, actor_target, critic, critic_target, pibar, batch, noise, alpha, gamma, noise_clip, backup):
+    """y = r + γ (1 − d) [min Q̄(s′, clip(π_targ(s′) + clip(ε))) − α ‖π(s′) − π̄(s′)‖²] (PROTO-TD3, paper appendix)."""
     s, a, r, s2, d = (np.asarray(getattr(batch, f), np.float64) for f in
                       ("observations", "actions", "rewards", "next_observations", "terminals"))
     a2 = np.clip(det_actor(actor_target, s2) + np.clip(noise, -noise_clip, noise_clip), -1, 1)
     v = critics(critic_target, s2, a2).min(0)
     if backup:
-        v = v - alpha * np.sum((a2 - det_actor(pibar, s2)) ** 2, -1)
+        v = v - alpha * np.sum((det_actor(actor, s2) - det_actor(pibar, s2)) ** 2, -1)
     y = r + gamma * (1 - d) * v
     return np.mean((critics(critic, s, a) - y[None]) ** 2)
 

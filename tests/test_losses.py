@@ -89,9 +89,27 @@ def test_td3_critic_loss_matches_numpy(backup):
     key, alpha = jax.random.PRNGKey(10), 1.3
     loss, _ = td3.critic_loss(lrn.critic, lrn, batch, key, alpha, hp, nets, cfg)
     noise = 0.2 * np.asarray(jax.random.normal(key, (B, ACT)), np.float64)
-    expected = ref.td3_critic_loss(lrn.actor_target, lrn.critic, lrn.critic_target, lrn.pibar, batch, noise, alpha,
-                                   0.9, 0.5, backup)
+    expected = ref.td3_critic_loss(lrn.actor, lrn.actor_target, lrn.critic, lrn.critic_target, lrn.pibar, batch, noise,
+                                   alpha, 0.9, 0.5, backup)
     np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
+
+
+def test_td3_backup_penalizes_the_current_actor():
+    """Zero smoothing noise, three distinct actors (π, π_targ, π̄): the target is the paper's Q̄(s′, π_targ(s′)) −
+    α‖π(s′) − π̄(s′)‖². The old backup penalized ‖a′ − π̄(s′)‖² of the target action; it differs here."""
+    cfg, nets, _, lrn, batch = _setup("td3")
+    hp = HParams.create(gamma=0.9, policy_noise=0.0)
+    assert lrn.actor_target is not None
+    key, alpha = jax.random.PRNGKey(11), 1.3
+    _, info = td3.critic_loss(lrn.critic, lrn, batch, key, alpha, hp, nets, cfg)
+    s2 = np.asarray(batch.next_observations, np.float64)
+    a_targ = np.clip(ref.det_actor(lrn.actor_target, s2), -1, 1)
+    pen = np.sum((ref.det_actor(lrn.actor, s2) - ref.det_actor(lrn.pibar, s2)) ** 2, -1)
+    y = (np.asarray(batch.rewards) + 0.9 * (1 - np.asarray(batch.terminals))
+         * (ref.critics(lrn.critic_target, s2, a_targ).min(0) - alpha * pen))
+    np.testing.assert_allclose(float(info["target_mean"]), y.mean(), rtol=2e-5)
+    old_pen = np.sum((a_targ - ref.det_actor(lrn.pibar, s2)) ** 2, -1)
+    assert abs(np.mean(0.9 * (1 - np.asarray(batch.terminals)) * alpha * (pen - old_pen))) > 1e-3
 
 
 @pytest.mark.parametrize("alpha", [0.0, 2.5])

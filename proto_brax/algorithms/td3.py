@@ -2,7 +2,9 @@
 
 Actor loss E[−λ Q₁(s, π(s)) + α ‖π(s) − π̄(s)‖²] with λ = β / mean|Q₁| (stop-gradient, as TD3+BC normalizes);
 target-policy smoothing, clipped double-Q and a delayed actor as in TD3. With ``value_reg_backup`` the critic target
-also subtracts α ‖a′ − π̄(s′)‖² for the smoothed target action a′, mirroring PROTO-SAC's KL backup.
+also subtracts α ‖π(s′) − π̄(s′)‖² of the *current* actor π, the paper's backup (the TD3 analogue of PROTO-SAC's KL
+term, Eq. 3). The target actor and π̄ start at π₀ and, at the default τ = target_tau, receive the same Polyak update:
+a penalty on the target actor's action would be ‖clip(ε)‖², smoothing noise only (the bug fixed in issue 35).
 """
 
 from __future__ import annotations
@@ -23,13 +25,17 @@ def critic_loss(
     critic, learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
     nets: Networks, cfg: FinetuneConfig,
 ):
-    """y = r + γ (1 − d) [Q̄(s′, a′) − α ‖a′ − π̄(s′)‖²], a′ = clip(π_targ(s′) + clip(ε, ±c), ±1), ε ~ N(0, σ²)."""
-    a_targ = nets.actor.apply(learner.actor_target, batch.next_observations)
+    """y = r + γ (1 − d) [Q̄(s′, a′) − α ‖π(s′) − π̄(s′)‖²], a′ = clip(π_targ(s′) + clip(ε, ±c), ±1), ε ~ N(0, σ²).
+
+    The penalty is the current actor's distance to π̄ at s′ (paper, appendix), not the smoothed target action's.
+    """
+    s2 = batch.next_observations
+    a_targ = nets.actor.apply(learner.actor_target, s2)
     noise = jnp.clip(hp.policy_noise * jax.random.normal(key, a_targ.shape), -hp.noise_clip, hp.noise_clip)
     a_next = jnp.clip(a_targ + noise, -1.0, 1.0)
-    v_next = reduce_q(nets.critic.apply(learner.critic_target, batch.next_observations, a_next), cfg.clipped_double_q)
+    v_next = reduce_q(nets.critic.apply(learner.critic_target, s2, a_next), cfg.clipped_double_q)
     if cfg.regularizer and cfg.value_reg_backup:
-        v_next = v_next - alpha * mse_penalty(a_next, nets.actor.apply(learner.pibar, batch.next_observations))
+        v_next = v_next - alpha * mse_penalty(nets.actor.apply(learner.actor, s2), nets.actor.apply(learner.pibar, s2))
     target = lax.stop_gradient(batch.rewards + hp.gamma * (1.0 - batch.terminals) * v_next)
     q = nets.critic.apply(critic, batch.observations, batch.actions)
     loss = jnp.mean(jnp.square(q - target))
