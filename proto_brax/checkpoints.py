@@ -8,6 +8,7 @@ last, so a directory without it is an interrupted save and is never read.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import os
@@ -40,13 +41,56 @@ def _json_default(x):
     raise TypeError(f"not JSON serializable: {type(x)}")
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def remove_stale_temporaries(directory: Path, pattern: str) -> list[Path]:
+    """Remove the hidden ``…tmp-PID`` / ``…old-PID`` directories (matching ``pattern``) that a save killed midway left
+    behind; a directory whose process still runs is left alone. Returns what was removed."""
+    removed = []
+    for p in sorted(Path(directory).glob(pattern)):
+        pid = p.name.rpartition("-")[2]
+        if not pid.isdigit() or int(pid) == os.getpid() or _alive(int(pid)):
+            continue
+        shutil.rmtree(p, ignore_errors=True)
+        removed.append(p)
+    return removed
+
+
+def tree_content_hash(tree: Any) -> str:
+    """sha256 (hex) of a pytree's array content: each non-empty leaf, in tree order, contributes its path, dtype and
+    shape and then its bytes. What a bundle records as ``content_sha256`` and ``load_bundle`` checks."""
+    h = hashlib.sha256()
+    for key, leaf in jax.tree_util.tree_leaves_with_path(jax.device_get(tree)):
+        a = np.ascontiguousarray(np.asarray(leaf))
+        if a.size == 0:  # (saved as None: see _drop_empty)
+            continue
+        h.update(f"{jax.tree_util.keystr(key)}|{a.dtype.str}|{list(a.shape)}\n".encode())
+        h.update(a.tobytes(order="C"))
+    return h.hexdigest()
+
+
 def save(path: str | os.PathLike, tree: Any, metadata: dict[str, Any]) -> None:
     """Save ``tree`` and ``metadata`` to directory ``path``, replacing an older checkpoint there atomically.
 
     Everything is written into a hidden sibling directory first and renamed into place, so a reader (or a resume after
-    SIGKILL) sees the old checkpoint or the new one, never a partial one.
+    SIGKILL) sees the old checkpoint or the new one, never a partial one. A non-empty ``path`` that is not a
+    checkpoint (no metadata.json) is refused, never replaced.
     """
     path = Path(path).absolute()
+    if path.exists() and (not path.is_dir() or (any(path.iterdir()) and not (path / "metadata.json").exists())):
+        what = ", ".join(sorted(p.name for p in path.iterdir())[:5]) if path.is_dir() else "a file"
+        raise CheckpointError(f"Refusing to replace {path}: it is not a checkpoint (no metadata.json; it holds "
+                              f"{what}). Choose another path.")
+    remove_stale_temporaries(path.parent, f".{path.name}.tmp-*")
+    remove_stale_temporaries(path.parent, f".{path.name}.old-*")
     tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
     if tmp.exists():
         shutil.rmtree(tmp)
@@ -66,8 +110,12 @@ def save(path: str | os.PathLike, tree: Any, metadata: dict[str, Any]) -> None:
 
 def save_step(root: str | os.PathLike, step: int, tree: Any, metadata: dict[str, Any], keep: int = 2) -> Path:
     """Step-numbered checkpoint ``root/step_XXXXXXXX``; older ones beyond the newest ``keep`` are removed after the
-    new one is complete (a crash at any point leaves at least one complete checkpoint)."""
+    new one is complete (a crash at any point leaves at least one complete checkpoint). Temporaries of saves that a
+    kill interrupted (``.step_*.tmp-PID``) are removed."""
     root = Path(root)
+    if root.is_dir():
+        remove_stale_temporaries(root, ".step_*.tmp-*")
+        remove_stale_temporaries(root, ".step_*.old-*")
     path = root / f"step_{step:08d}"
     save(path, tree, {**metadata, "step": step})
     for old in sorted(root.glob("step_*"))[:-keep]:
@@ -205,12 +253,32 @@ BUNDLE_KIND = "pretrained-bundle"
 
 
 def save_bundle(path: str | os.PathLike, state: Any, metadata: dict[str, Any]) -> None:
-    """Save a pretrained bundle (actor, critics, target critics, value, optimizer states for every seed)."""
+    """Save a pretrained bundle (actor, critics, target critics, value, optimizer states for every seed) with the
+    content checksum of its arrays (``content_sha256``), which :func:`load_bundle` verifies."""
     required = ("algo", "env", "obs_size", "act_size", "net", "seeds", "steps", "hparams")
     missing = [k for k in required if k not in metadata]
     if missing:
         raise ValueError(f"Bundle metadata lacks {missing}.")
-    save(path, state, {**metadata, "kind": BUNDLE_KIND})
+    save(path, state, {**metadata, "kind": BUNDLE_KIND, "content_sha256": tree_content_hash(_drop_empty(state))})
+
+
+def rebuild_command(path: str | os.PathLike, meta: dict[str, Any]) -> str:
+    """The command that makes the bundle at ``path`` again (from its metadata)."""
+    hidden = " ".join(str(h) for h in (meta.get("net") or {}).get("hidden", ()))
+    seeds = " ".join(str(s) for s in meta.get("seeds", ()))
+    hp = ""
+    try:  # the offline hyper-parameters that differ from the algorithm's defaults
+        from proto_brax.algorithms.insample import OfflineHParams
+        from proto_brax.pretrain import ALGO_HP
+
+        default = {k: float(v) for k, v in dataclasses.asdict(
+            OfflineHParams.create(**ALGO_HP.get(meta.get("algo"), {}))).items()}
+        hp = "".join(f" --hp {k} {v:.6g}" for k, v in sorted((meta.get("hparams") or {}).items())
+                     if k in default and not np.isclose(v, default[k], rtol=1e-6))
+    except Exception:  # (a message helper: never fail because of it)
+        pass
+    return (f"python -m proto_brax.pretrain --dataset {meta.get('dataset', 'DATASET')} --algo {meta.get('algo')} "
+            f"--seeds {seeds} --steps {meta.get('steps')} --hidden {hidden}{hp} --out {path} --overwrite")
 
 
 def bundle_template(meta: dict[str, Any]):
@@ -230,15 +298,50 @@ def bundle_template(meta: dict[str, Any]):
     return jax.eval_shape(jax.vmap(init), keys)
 
 
-def load_bundle(path: str | os.PathLike) -> tuple[Any, dict[str, Any]]:
-    """Restore a bundle; a missing, corrupt or non-bundle directory raises CheckpointError naming the problem."""
+def load_bundle(path: str | os.PathLike, legacy_note: bool = True) -> tuple[Any, dict[str, Any]]:
+    """Restore a bundle and verify its content checksum; a missing, corrupt or non-bundle directory raises
+    CheckpointError naming the problem (and, for a corrupt bundle, the command that rebuilds it).
+
+    A bundle saved before checksums existed (no ``content_sha256``) is accepted when its arrays are finite, with a
+    note naming ``python -m proto_brax.checkpoints checksum PATH``, which adds the checksum."""
     meta = read_metadata(path)
     if meta.get("kind") != BUNDLE_KIND:
         raise CheckpointError(f"{path} is not a pretrained bundle (kind {meta.get('kind')!r}); "
                               "create one with `python -m proto_brax.pretrain`.")
     template = bundle_template(meta)
-    state, meta = restore(path, template)
+    try:
+        state, meta = restore(path, template)
+    except CheckpointError as e:
+        raise CheckpointError(f"{e} Rebuild the bundle: {rebuild_command(path, meta)}") from e
+    want = meta.get("content_sha256")
+    if want is not None:
+        got = tree_content_hash(state)
+        if got != want:
+            raise CheckpointError(f"Bundle {path} is corrupt: the checksum of its arrays is {got[:16]}…, its "
+                                  f"metadata.json records {want[:16]}…. Rebuild it: {rebuild_command(path, meta)}")
+    else:
+        bad = sum(int(np.size(x) - np.count_nonzero(np.isfinite(x))) for x in jax.tree.leaves(state)
+                  if np.issubdtype(np.asarray(x).dtype, np.floating))
+        if bad:
+            raise CheckpointError(f"Bundle {path} is corrupt: {bad} non-finite values in its arrays. Rebuild it: "
+                                  f"{rebuild_command(path, meta)}")
+        if legacy_note:
+            print(f"note: bundle {path} has no content checksum (saved by an older version): add one with `python -m "
+                  f"proto_brax.checkpoints checksum {path}`", flush=True)
     return state, meta
+
+
+def add_checksum(path: str | os.PathLike) -> str:
+    """Record the content checksum of a bundle saved before checksums existed (its arrays must restore and be
+    finite); returns it. A bundle that has one is verified instead."""
+    meta = read_metadata(path)
+    if meta.get("content_sha256") is not None:
+        load_bundle(path)  # verifies it
+        return meta["content_sha256"]
+    state, _ = load_bundle(path, legacy_note=False)
+    meta["content_sha256"] = tree_content_hash(state)
+    write_json_atomic(Path(path) / "metadata.json", meta)
+    return meta["content_sha256"]
 
 
 def validate_bundle(meta: dict[str, Any], env: str, obs_size: int, act_size: int, net) -> None:
@@ -341,12 +444,17 @@ def index_markdown(root: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """python -m proto_brax.checkpoints list [ROOT] | show PATH | index [ROOT]"""
+    """python -m proto_brax.checkpoints list [ROOT] | show PATH | index [ROOT] | checksum PATH..."""
     import sys
 
     argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] not in ("list", "show", "index"):
-        raise SystemExit("usage: python -m proto_brax.checkpoints list [ROOT=checkpoints] | show PATH | index [ROOT]")
+    if not argv or argv[0] not in ("list", "show", "index", "checksum"):
+        raise SystemExit("usage: python -m proto_brax.checkpoints list [ROOT=checkpoints] | show PATH | index [ROOT] "
+                         "| checksum PATH... (record or verify bundles' content checksums)")
+    if argv[0] == "checksum":
+        for p in argv[1:]:
+            print(f"{p}: content_sha256 {add_checksum(p)}")
+        return
     if argv[0] == "index":
         root = Path(argv[1] if len(argv) > 1 else "checkpoints")
         text = index_markdown(root)

@@ -57,10 +57,37 @@ def current_snapshots(env_name: str, behavior_root: Path | None = None) -> dict[
     return {"expert": expert.step, "medium": medium.step}
 
 
-def cached_metadata(path: Path) -> dict:
-    """The metadata entry of a cached dataset file, read without loading (or hashing) its arrays."""
-    with np.load(path, allow_pickle=False) as npz:
-        return json.loads(str(npz["metadata"][()]))
+def cached_metadata(path: Path, rebuild_hint: str | None = None) -> dict:
+    """The metadata entry of a cached dataset file, read without loading (or hashing) its arrays; a file that cannot
+    be read (truncated, garbled) raises CorruptDatasetError naming ``rebuild_hint`` (default: the ``make`` command
+    of the name the file is cached under)."""
+    import zipfile
+
+    from proto_brax.data.dataset import CorruptDatasetError
+
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            meta = json.loads(str(npz["metadata"][()]))
+        if not isinstance(meta, dict):
+            raise ValueError("the metadata entry is not a JSON object")
+        return meta
+    except (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile, UnicodeDecodeError) as e:
+        hint = rebuild_hint or _rebuild_hint_for(Path(path))
+        how = f"rebuild it with: {hint}" if hint else "delete it and rebuild it with the command that created it"
+        raise CorruptDatasetError(f"dataset file {str(path)!r} is corrupt or unreadable ({type(e).__name__}: {e}); "
+                                  f"{how}") from e
+
+
+def _rebuild_hint_for(path: Path) -> str | None:
+    """The ``make … --force`` command of a cache file's name (NAME.npz or NAME-nSIZE-seedS.npz), None if not one."""
+    import re
+
+    from proto_brax.data.generate import dataset_names
+
+    m = re.fullmatch(r"(.+?)(?:-n(\d+)-seed(\d+))?\.npz", path.name)
+    if m is None or m.group(1) not in dataset_names():
+        return None
+    return rebuild_command(m.group(1), int(m.group(2)) if m.group(2) else None, int(m.group(3) or 0))
 
 
 def stale_reason(meta: dict, behavior_root: Path | None = None) -> str | None:
@@ -435,6 +462,9 @@ def cmd_make(a: Make) -> Path:
     from proto_brax.data.partial import discard
 
     path = dataset_path(a.name, a.size, a.seed, a.cache_dir)
+    if path.is_symlink() or (path.exists() and not path.is_file()):  # --force replaces only a dataset file
+        raise FileExistsError(f"{path} is not a dataset file (a directory or a link): refusing to replace it"
+                              f"{' even with --force' if a.force else ''}; move it away or pass another --cache-dir.")
     if path.exists() and not a.force:
         print(f"{a.name}: already cached at {path} (use --force to rebuild)")
         return path
@@ -445,8 +475,11 @@ def cmd_make(a: Make) -> Path:
 
         for sub in ("medium", "expert"):
             sub_path = dataset_path(a.name.replace("medium-expert", sub), a.size, a.seed, a.cache_dir)
-            if sub_path.exists() and not stale_reason((part := load_npz(sub_path))[1]):
-                parts[sub] = part
+            try:  # a corrupt or stale part is generated again (identically) rather than reused
+                if sub_path.exists() and not stale_reason((part := load_npz(sub_path))[1]):
+                    parts[sub] = part
+            except ValueError as e:  # CorruptDatasetError, non-finite values
+                print(f"not reusing {sub_path}: {e}", flush=True)
     if not generation_numerics_pinned():
         print(f"warning: {a.name} is generated under multi-threaded XLA, whose rounding differs (other episodes, "
               "another content hash): `python -m proto_brax.datasets make` pins one thread.", flush=True)
@@ -469,7 +502,8 @@ def cmd_info(a: Info) -> dict:
     from proto_brax.data.generate import dataset_names
 
     path = dataset_path(a.name, a.size, a.seed, a.cache_dir) if a.name in dataset_names() else None
-    if path is not None and path.exists() and (why := stale_reason(meta := cached_metadata(path))):
+    hint = rebuild_command(a.name, a.size, a.seed) if path is not None else None
+    if path is not None and path.exists() and (why := stale_reason(meta := cached_metadata(path, hint))):
         print(f"{a.name}: STALE ({why}): {rebuild_command(a.name, a.size, a.seed)}")  # still show what it holds
     else:
         _, meta = load_dataset(a.name, a.size, a.seed, a.cache_dir)  # verifies the file; names the fix if absent
@@ -498,8 +532,11 @@ def cmd_list(a: List) -> None:
         path = dataset_path(name, None, 0, a.cache_dir)
         state = "-"
         if path.exists():
-            why = stale_reason(cached_metadata(path))
-            state = f"stale ({why}): {rebuild_command(name, None, 0)}" if why else "cached"
+            try:
+                why = stale_reason(cached_metadata(path))
+                state = f"stale ({why}): {rebuild_command(name, None, 0)}" if why else "cached"
+            except ValueError:  # CorruptDatasetError
+                state = f"corrupt: {rebuild_command(name, None, 0)}"
         print(f"{name:28s} {size:>9d}  {state}")
 
 
@@ -539,7 +576,10 @@ def main(argv: list[str] | None = None) -> None:
 
         mjx = envs.get_spec(parse_name(cmd.name)[0]).default_backend == "mjx"  # AntMaze, Adroit
         os.environ["XLA_FLAGS"] = generation_xla_flags(mjx=mjx)
-    {Make: cmd_make, Info: cmd_info, List: cmd_list, References: cmd_references, Measure: cmd_measure}[type(cmd)](cmd)
+    from proto_brax.sweep import exit_on_input_error
+
+    run = {Make: cmd_make, Info: cmd_info, List: cmd_list, References: cmd_references, Measure: cmd_measure}[type(cmd)]
+    exit_on_input_error(lambda: run(cmd), argv)
 
 
 if __name__ == "__main__":

@@ -56,3 +56,75 @@ def copy_atomic(src: str | os.PathLike, dst: str | os.PathLike) -> None:
 
     with open(src, "rb") as s, atomic_write(dst, "wb") as d:
         shutil.copyfileobj(s, d)
+
+
+def append_once(path: str | os.PathLike, text: str) -> None:
+    """Append ``text`` with a single ``write`` system call on an ``O_APPEND`` descriptor.
+
+    A kill (even SIGKILL) cannot land inside one ``write`` to a local file, so one call's bytes are appended whole
+    or not at all; a reader must still tolerate a torn last line after a power loss (``read_jsonl``)."""
+    data = text.encode()
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+    try:
+        written = os.write(fd, data)
+        while written < len(data):  # a short write (disk full, signals on some filesystems): finish it
+            written += os.write(fd, data[written:])
+    finally:
+        os.close(fd)
+
+
+def strict_json(x):
+    """NaN/inf -> None, numpy -> Python, recursively: what strict JSON parsers (``JSON.parse``) accept."""
+    import math
+
+    import numpy as np
+
+    if isinstance(x, dict):
+        return {k: strict_json(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [strict_json(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return strict_json(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def nan_for_null(x):
+    """The reader's side of :func:`strict_json` for numeric records (metrics rows, summary statistics): None -> NaN,
+    recursively."""
+    if isinstance(x, dict):
+        return {k: nan_for_null(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [nan_for_null(v) for v in x]
+    return float("nan") if x is None else x
+
+
+def read_jsonl(path: str | os.PathLike, drop_torn_tail: bool = True) -> tuple[list[dict], int]:
+    """Rows of a JSON-lines file of numeric records (null read as NaN), and the number of torn lines dropped.
+
+    Only the last line may be torn (cut by a crash in the middle of an append: it has no final newline or does not
+    parse); with ``drop_torn_tail`` it is dropped, any other unparsable line raises ValueError naming the line."""
+    import json
+
+    text = Path(path).read_text()
+    lines = text.split("\n")  # a complete file ends with "\n": its last element is ""
+    rows, torn = [], 0
+    for n, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        last = n == len(lines) or (n == len(lines) - 1 and not lines[-1])
+        try:
+            row = json.loads(line)
+            if not isinstance(row, dict):
+                raise ValueError("not a JSON object")
+        except ValueError as e:
+            if drop_torn_tail and n == len(lines):  # no newline after it: a torn append
+                torn += 1
+                continue
+            where = "its last line" if last else f"line {n}"
+            raise ValueError(f"{path}: {where} is not a JSON row ({e}).") from None
+        rows.append(nan_for_null(row))
+    return rows, torn

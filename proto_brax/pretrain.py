@@ -60,6 +60,29 @@ def default_layer_norm(env: str) -> bool:
     return env != "halfcheetah"
 
 
+def check_out(out: Path, overwrite: bool) -> None:
+    """Refuse an --out that holds anything but a bundle (even with --overwrite, which replaces only a bundle), and an
+    existing bundle without --overwrite."""
+    import json
+
+    from proto_brax.checkpoints import BUNDLE_KIND
+
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"--out {out} is a file: choose another --out.")
+    if not out.exists() or not any(out.iterdir()):
+        return
+    try:
+        kind = json.loads((out / "metadata.json").read_text()).get("kind")
+    except (OSError, ValueError, AttributeError):
+        kind = None
+    if kind != BUNDLE_KIND:
+        held = ", ".join(sorted(p.name for p in out.iterdir())[:5])
+        raise FileExistsError(f"--out {out} is not a pretrained bundle (it holds {held}): refusing to replace it"
+                              f"{' even with --overwrite' if overwrite else ''}; choose another --out.")
+    if not overwrite:
+        raise FileExistsError(f"{out} already holds a bundle: pass --overwrite or another --out.")
+
+
 def pretrain(args: PretrainArgs) -> dict:
     from proto_brax import __version__, checkpoints, envs
     from proto_brax.algorithms.insample import OfflineHParams
@@ -69,6 +92,9 @@ def pretrain(args: PretrainArgs) -> dict:
     from proto_brax.train.offline import PretrainConfig, make_pretrain, run_pretrain
 
     hp = OfflineHParams.create(**{**ALGO_HP.get(args.algo, {}), **args.hp})
+    dname = checkpoints.dataset_label(args.dataset)
+    out = Path(args.out or Path("checkpoints/pretrained") / dname / args.algo)
+    check_out(out, args.overwrite)  # before the data are read (or anything trains)
     data, dmeta = load_dataset(args.dataset, args.dataset_size)
     env = args.env or (dmeta or {}).get("env")
     if env is None:
@@ -78,10 +104,6 @@ def pretrain(args: PretrainArgs) -> dict:
     data = transform_rewards(data, scale, shift)
     if args.algo == "calql":
         data = with_returns_to_go(data, float(hp.gamma))
-    dname = checkpoints.dataset_label(args.dataset)
-    out = Path(args.out or Path("checkpoints/pretrained") / dname / args.algo)
-    if (out / "metadata.json").exists() and not args.overwrite:
-        raise FileExistsError(f"{out} already holds a bundle: pass --overwrite or another --out.")
     ln = default_layer_norm(env) if args.critic_layer_norm is None else args.critic_layer_norm
     cfg = PretrainConfig(algo=args.algo, env=env, net=NetworkConfig(hidden=tuple(args.hidden), critic_layer_norm=ln),
                          steps=args.steps, log_every=args.log_every, batch_size=args.batch_size,
@@ -136,7 +158,9 @@ def pretrain(args: PretrainArgs) -> dict:
 def main(argv: list[str] | None = None) -> None:
     import tyro
 
-    pretrain(tyro.cli(PretrainArgs, args=argv))
+    from proto_brax.sweep import exit_on_input_error
+
+    exit_on_input_error(lambda: pretrain(tyro.cli(PretrainArgs, args=argv)), argv)
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import tyro
 
-from proto_brax.files import atomic_write
+from proto_brax.files import atomic_write, nan_for_null
 
 GRID_AXES = ("tau", "eta", "alpha0")
 REQUIRED_KEYS = ("chunk", "run", "seed", "tau", "eta", "alpha0", "step", "eval_return", "normalized_score",
@@ -119,13 +119,15 @@ def load_sweep(path: str | os.PathLike) -> Sweep:
         raise ReportError(f"not a sweep directory: {path} has no metrics.jsonl; {hint}.")
     config = _read_json(path / "config.json") if (path / "config.json").is_file() else {}
     summary = _read_json(path / "summary.json") if (path / "summary.json").is_file() else None
+    if isinstance(summary, dict) and "points" in summary:  # strict JSON stores NaN statistics as null
+        summary["points"] = nan_for_null(summary["points"])
     rows: dict[tuple[int, int], dict] = {}
     text = gzip.decompress(metrics.read_bytes()).decode() if metrics.suffix == ".gz" else metrics.read_text()
     for n, line in enumerate(text.splitlines(), 1):
         if not line.strip():
             continue
         try:
-            row = json.loads(line)
+            row = nan_for_null(json.loads(line))  # (NaN is stored as null: strict JSON)
         except json.JSONDecodeError as e:
             raise ReportError(f"{metrics}:{n} is not a JSON row ({e}).") from None
         missing = [k for k in REQUIRED_KEYS if k not in row]

@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 
-from proto_brax.files import write_text_atomic
+from proto_brax.files import append_once, read_jsonl, strict_json, write_text_atomic
 from proto_brax.methods import METHODS, describe, get_method
 
 GRID_AXES = ("tau", "eta", "alpha0")
@@ -112,11 +112,20 @@ class SweepArgs:
     report: bool = True
     """Write the PNG report (learning curves, heat map, deviation, cost) into OUT/report."""
     distributed: bool = False
-    """Multi-host: call jax.distributed.initialize() (coordinator from the cluster's environment, e.g. SLURM or
-    JAX_COORDINATOR_ADDRESS/JAX_NUM_PROCESSES/JAX_PROCESS_ID) and shard the grid over every process's devices;
-    process 0 writes the outputs."""
+    """Multi-host: call jax.distributed.initialize() and shard the grid over every process's devices; process 0
+    writes the outputs. The coordinator comes from --coordinator/--num-processes/--process-id, else from the cluster's
+    environment as jax detects it (SLURM, Open MPI, or JAX_COORDINATOR_ADDRESS with the flags)."""
+    coordinator: str | None = None
+    """With --distributed: HOST:PORT of process 0's coordinator (implies --distributed)."""
+    num_processes: int | None = None
+    """With --distributed: the number of processes (each runs this same command with its own --process-id)."""
+    process_id: int | None = None
+    """With --distributed: this process's index, 0 .. num_processes − 1 (0 writes the outputs)."""
     devices: int | None = None
-    """CPU only: host devices to shard the grid over (default: one per core)."""
+    """CPU only: host devices to shard the grid over (default: one per core). The numbers of a run depend on the
+    layout (devices, runs per device): --resume refuses another one (README: Reliability)."""
+    debug: bool = False
+    """Show the full traceback of an input error (also: PROTO_BRAX_DEBUG=1), instead of a one-line message."""
 
 
 def _finetune_config(args: SweepArgs):
@@ -168,7 +177,8 @@ def _load_dataset(name_or_path: str | None, size: int | None = None):
 
     if name_or_path in dataset_names():
         path = datasets.dataset_path(name_or_path, size)
-        stale = path.exists() and datasets.stale_reason(datasets.cached_metadata(path))
+        hint = datasets.rebuild_command(name_or_path, size, 0)
+        stale = path.exists() and datasets.stale_reason(datasets.cached_metadata(path, hint))
         if stale or not path.exists():  # made from other behaviour snapshots than the current rule picks, or missing
             state = f"is stale ({stale})" if stale else "is not cached"
             argv = datasets.make_argv(name_or_path, size, 0)
@@ -299,32 +309,96 @@ def jax_tree_index(tree, idx):
     return jax.tree.map(lambda x: x[idx], tree)
 
 
-def _check_out(args: SweepArgs, sweep_cfg: dict) -> None:
-    """Refuse an existing --out unless --resume (same configuration) or --overwrite; writes nothing."""
+# What a sweep writes into --out (and nothing else): only a directory holding these is replaced by --overwrite.
+SWEEP_ENTRIES = frozenset({"config.json", "metrics.jsonl", "summary.json", "state", "report", "tensorboard",
+                           "pretrained"})
+
+
+def _our_temporary(name: str) -> bool:
+    """Hidden temporaries of our atomic writes (``.NAME.XXXX.tmp``) and checkpoint saves (``.NAME.tmp-PID``)."""
+    return name.startswith(".") and (name.endswith(".tmp") or ".tmp-" in name or ".old-" in name)
+
+
+def _read_config(out: Path) -> dict | None:
+    """``out/config.json`` when it is a sweep's (a JSON object with its ``sweep`` and ``finetune`` records)."""
+    try:
+        config = json.loads((out / "config.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return config if isinstance(config, dict) and {"sweep", "finetune"} <= set(config) else None
+
+
+def not_a_sweep(out: Path) -> str | None:
+    """Why the existing, non-empty directory ``out`` is not a sweep's output (then --overwrite must not delete it),
+    or None when it is one: a sweep's config.json and nothing but what a sweep writes."""
+    names = sorted(p.name for p in out.iterdir())
+    foreign = [n for n in names if n not in SWEEP_ENTRIES and not _our_temporary(n)]
+    shown = ", ".join(foreign[:5] + (["…"] if len(foreign) > 5 else []))
+    if foreign:
+        return f"it holds {shown}, which a sweep does not write"
+    if all(_our_temporary(n) for n in names):
+        return None  # a sweep killed before its config.json was complete
+    if not (out / "config.json").exists():
+        return "it has no config.json"
+    if _read_config(out) is None:
+        return "its config.json is not a sweep's"
+    return None
+
+
+def layout_record(grid_size: int, devices: list) -> dict:
+    """How the grid is laid out over devices: the numbers of a run depend on it (README: Reliability)."""
+    n = len(devices)
+    padded = -(-grid_size // n) * n
+    return {"devices": n, "platform": devices[0].platform, "runs_per_device": padded // n,
+            "padding": padded - grid_size}
+
+
+def _check_out(args: SweepArgs, sweep_cfg: dict, layout: dict | None = None) -> None:
+    """Refuse an existing --out unless --resume (same configuration and layout) or --overwrite of a sweep's own
+    output; writes nothing (an --overwrite removes the old sweep later, after every check has passed)."""
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"--out {out} is a file, not a directory: choose another --out.")
     if out.exists() and any(out.iterdir()):
         if args.resume:
-            old = json.loads((out / "config.json").read_text())
+            old = _read_config(out)
+            if old is None:
+                raise ValueError(f"--resume: {out} holds no sweep to resume (no readable config.json of a sweep).")
             if old["sweep"] != sweep_cfg:
                 diff = {k: (old["sweep"].get(k), v) for k, v in sweep_cfg.items() if old["sweep"].get(k) != v}
                 raise ValueError(f"--resume: the configuration differs from the one in {out}: {diff}.")
+            was = old.get("layout")
+            if layout is not None and was is not None and was != layout:
+                flag = (f"--devices {was['devices']}" if was.get("platform") == "cpu"
+                        else f"{was['devices']} {was.get('platform')} device(s)")
+                raise ValueError(f"--resume: {out} ran on {was['devices']} {was.get('platform')} device(s) "
+                                 f"({was['runs_per_device']} run(s) each), this process has {layout['devices']} "
+                                 f"({layout['runs_per_device']} each), which gives other numbers: resume with "
+                                 f"{flag}.")
         elif not args.overwrite:
             raise FileExistsError(f"{out} exists: pass --resume to continue it, --overwrite to replace it, "
                                   "or choose another --out.")
+        elif why := not_a_sweep(out):
+            raise FileExistsError(f"--overwrite: {out} is not a sweep's output ({why}): refusing to delete it; "
+                                  "choose another --out.")
     elif args.resume:
         raise FileNotFoundError(f"--resume: nothing to resume in {out}.")
 
 
 def _prepare_out(args: SweepArgs, config: dict) -> None:
+    """Create --out (replacing an old sweep with --overwrite) and write config.json: called once every check of the
+    run has passed, so a refused run leaves an old sweep as it was."""
     from proto_brax.checkpoints import write_json_atomic
 
     out = Path(args.out)
     if args.resume:
         return
-    if out.exists() and args.overwrite:
+    if out.exists() and args.overwrite and any(out.iterdir()):
+        if why := not_a_sweep(out):  # (checked before; the directory may have changed since)
+            raise FileExistsError(f"--overwrite: {out} is not a sweep's output ({why}): refusing to delete it.")
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out / "config.json", config)
+    write_json_atomic(out / "config.json", strict_json(config))
 
 
 def episode_stats(env: str, returns, lengths, success_steps=None) -> dict[str, float]:
@@ -384,12 +458,30 @@ def _write_tensorboard(writers, rows: list[dict]) -> None:
         writers[r["run"]].flush()
 
 
-def _truncate_metrics(path: Path, chunks_done: int) -> None:
-    """Drop rows of chunks that were logged but not checkpointed (a crash between the two): they are re-run."""
+def _truncate_metrics(path: Path, chunks_done: int, runs: int | None = None) -> None:
+    """Keep the rows of the checkpointed chunks (those before ``chunks_done``, and π₀'s): rows logged after the last
+    checkpoint (a crash between the two) and a torn last line (a crash inside an append) are dropped; their chunks
+    are re-run from the checkpoint. With ``runs``, every kept chunk must hold that many rows."""
     if not path.exists():
         return
-    keep = [line for line in path.read_text().splitlines() if line and json.loads(line)["chunk"] < chunks_done]
-    write_text_atomic(path, "".join(line + "\n" for line in keep))
+    rows, torn = read_jsonl(path)
+    keep = [r for r in rows if r["chunk"] < chunks_done]
+    if torn:
+        print(f"{path}: dropped a torn last line (a crash during an append); its chunk is re-run", flush=True)
+    if runs is not None and chunks_done > 0:
+        counts = {c: 0 for c in range(-1, chunks_done)}
+        for r in keep:
+            counts[r["chunk"]] = counts.get(r["chunk"], 0) + 1
+        short = {c: n for c, n in counts.items() if n != runs}
+        if short:
+            raise ValueError(f"--resume: {path} lacks rows of checkpointed chunks ({short} rows, {runs} expected per "
+                             "chunk): the file was damaged; rerun the sweep with --overwrite.")
+    write_text_atomic(path, "".join(json.dumps(strict_json(r), allow_nan=False) + "\n" for r in keep))
+
+
+def _append_rows(path: Path, rows: list[dict]) -> None:
+    """One chunk's rows as strict JSON lines (NaN -> null), appended in one write: a kill leaves all or none."""
+    append_once(path, "".join(json.dumps(strict_json(r), allow_nan=False) + "\n" for r in rows))
 
 
 def lowest_early_scores(runs: list[list[dict]], fraction: float = 0.1) -> list[float]:
@@ -441,19 +533,49 @@ def print_table(summary: list[dict], grid_keys: list[str]) -> None:
               f"{f['iqm_high']:>7.1f}] | {n['mean']:>6.1f} ± {n['std']:>5.1f} | {rec['diverged_seeds'] or '-'}")
 
 
+def validate_args(args: SweepArgs) -> None:
+    """Checks of the command line that need no JAX (run before any backend starts): silent no-ops are errors."""
+    if args.devices is not None and args.devices < 1:
+        raise ValueError(f"--devices {args.devices}: give a number of host devices >= 1 (or leave it out: one per "
+                         "core).")
+    if args.steps >= 1 and args.learning_starts > args.steps:
+        raise ValueError(f"--learning-starts {args.learning_starts} > --steps {args.steps}: no update would run. "
+                         f"Lower --learning-starts (the first update comes after that many env steps) or raise "
+                         "--steps.")
+    if args.num_processes is not None and args.num_processes < 1:
+        raise ValueError(f"--num-processes {args.num_processes}: give a number >= 1.")
+    if args.process_id is not None and not (0 <= args.process_id < (args.num_processes or 1 << 30)):
+        raise ValueError(f"--process-id {args.process_id}: give an index in [0, --num-processes).")
+    if args.coordinator is not None and not args.coordinator.rpartition(":")[2].isdigit():
+        raise ValueError(f"--coordinator {args.coordinator!r}: write HOST:PORT (e.g. node0:1234).")
+
+
+# Fields of SweepArgs that do not change a run's numbers (not compared by --resume).
+RUN_ONLY_FIELDS = ("out", "overwrite", "resume", "devices", "report", "tensorboard", "distributed", "coordinator",
+                   "num_processes", "process_id", "debug")
+
+
 def run_sweep(args: SweepArgs) -> list[dict]:
     """Validate, compile, run (or resume) the grid; returns the per-point summary."""
     from proto_brax.train.grid import make_grid
 
+    validate_args(args)
     cfg = _finetune_config(args)
     method = get_method(args.algo)
     axes = grid_axes(args)
     base = {"anneal_horizon": float(args.anneal_horizon or args.steps), **method.hp, **args.hp}
     grid = make_grid(axes, list(args.seeds), base=base)  # validated before anything compiles
     sweep_cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
-                 if k not in ("out", "overwrite", "resume", "devices", "report", "tensorboard", "distributed")}
+                 if k not in RUN_ONLY_FIELDS}
     sweep_cfg = json.loads(json.dumps(sweep_cfg))  # tuples -> lists, as config.json stores them
-    _check_out(args, sweep_cfg)
+    import jax
+
+    lead = jax.process_index() == 0  # with --distributed, process 0 writes; the others compute their shards
+    layout = {**layout_record(grid.size, jax.devices()), "processes": jax.process_count()}
+    if lead:  # (another process must not look at --out: process 0 may have created it already)
+        _check_out(args, sweep_cfg, layout)
+    if jax.process_count() > 1 and args.resume:
+        raise ValueError("--resume is not supported across several processes yet: resume on one host.")
     dataset_name = resolve_dataset(args)
     ckpt = resolve_checkpoint(args)
     if args.pretrain is not None and (dataset_name is None or args.checkpoint not in ("auto", "none")):
@@ -467,20 +589,29 @@ def run_sweep(args: SweepArgs) -> list[dict]:
 
     if bmeta is not None and dataset_name is not None:
         validate_bundle_dataset(bmeta, dataset_name)
-    dataset, dmeta = _load_dataset(dataset_name, args.dataset_size)
+    dataset, dmeta = _load_dataset(dataset_name, args.dataset_size)  # non-finite values are refused here
+    from proto_brax.data.dataset import transform_rewards, validate_for_env, with_returns_to_go
+    from proto_brax.train.online import ALGORITHMS, make_finetune
+
+    if dataset is not None:  # every check of the data before --out is touched
+        from proto_brax.envs import make_env
+
+        env = make_env(cfg.env, cfg.backend)
+        validate_for_env(dataset, env.observation_size, env.action_size, str(dataset_name), env_name=cfg.env)
+        if ALGORITHMS[cfg.algo].mc_returns and np.unique(np.asarray(grid.hparams.gamma)).size != 1:
+            raise ValueError(f"--algo {args.algo} computes the dataset's returns-to-go once: use one gamma.")
     if args.pretrain is None:
         cfg = dataclasses.replace(cfg, **reward_transform(args, bmeta, dataset))
+    ft = make_finetune(cfg) if args.pretrain is None else None  # (errors surface here, before --out is written)
     config = {"sweep": sweep_cfg, "method": dataclasses.asdict(method), "finetune": dataclasses.asdict(cfg),
               "grid": list(grid.points),
+              "layout": layout,
               "dataset_metadata": dmeta,
               "checkpoint_metadata": bmeta}
     if bmeta is not None and dmeta is not None:
         config["dataset_vs_bundle"] = bundle_dataset_record(bmeta, dmeta)
         if note := regenerated_note(config["dataset_vs_bundle"]):
             print(note, flush=True)
-    import jax
-
-    lead = jax.process_index() == 0  # with --distributed, process 0 writes; the others compute their shards
     if lead:
         _prepare_out(args, config)
     if args.pretrain is not None:
@@ -500,32 +631,21 @@ def run_sweep(args: SweepArgs) -> list[dict]:
                                   out=bundle, overwrite=True))
         pretrained, per_run, bmeta = _load_checkpoint(bundle, cfg, grid, args.algo)
         cfg = dataclasses.replace(cfg, **reward_transform(args, bmeta, dataset))
+        ft = make_finetune(cfg)
         config["checkpoint_metadata"] = bmeta
         config["dataset_vs_bundle"] = bundle_dataset_record(bmeta, dmeta)
         config["finetune"] = dataclasses.asdict(cfg)
         if lead:
-            write_json_atomic(Path(args.out) / "config.json", config)
-    if jax.process_count() > 1 and args.resume:
-        raise ValueError("--resume is not supported across several processes yet: resume on one host.")
+            write_json_atomic(Path(args.out) / "config.json", strict_json(config))
     from tqdm import tqdm
 
     from proto_brax import __version__, checkpoints
-    from proto_brax.data.dataset import transform_rewards, validate_for_env, with_returns_to_go
     from proto_brax.train.grid import compile_grid, grid_mesh, padded_size, run_grid
-    from proto_brax.train.online import ALGORITHMS, make_finetune
 
-    ft = make_finetune(cfg)
     if dataset is not None:
-        from proto_brax.envs import make_env
-
-        env = make_env(cfg.env, cfg.backend)
-        validate_for_env(dataset, env.observation_size, env.action_size, str(dataset_name), env_name=cfg.env)
         dataset = transform_rewards(dataset, cfg.reward_scale, cfg.reward_shift)
         if ALGORITHMS[cfg.algo].mc_returns:  # Cal-QL's calibration bound: returns-to-go with the runs' γ
-            gammas = np.unique(np.asarray(grid.hparams.gamma))
-            if gammas.size != 1:
-                raise ValueError(f"--algo {args.algo} computes the dataset's returns-to-go once: use one gamma.")
-            dataset = with_returns_to_go(dataset, float(gammas[0]))
+            dataset = with_returns_to_go(dataset, float(np.asarray(grid.hparams.gamma)[0]))
         dataset = jax.tree.map(jax.numpy.asarray, dataset)
     mesh = grid_mesh()
     out = Path(args.out)
@@ -540,7 +660,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
             _truncate_metrics(metrics_path, -1)  # nothing checkpointed yet: start over, dropping every logged row
             return state, 0
         state, meta = checkpoints.restore(latest, state)
-        _truncate_metrics(metrics_path, meta["chunks_done"])
+        _truncate_metrics(metrics_path, meta["chunks_done"], runs=grid.size)
         print(f"resumed after chunk {meta['chunks_done']} of {cfg.num_chunks}", flush=True)
         bar.update(meta["chunks_done"] * cfg.eval_every)
         return state, meta["chunks_done"]
@@ -560,8 +680,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         timing["t"] = time.time()
         if not lead:
             return
-        with open(metrics_path, "a") as f:
-            f.writelines(json.dumps(r) + "\n" for r in rows)
+        _append_rows(metrics_path, rows)
         if tb is not None:
             _write_tensorboard(tb, rows)
         if jax.process_count() == 1:  # across hosts the state is not gathered to one place: no resume checkpoints
@@ -570,6 +689,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         bar.set_postfix(eval=f"{np.mean(finite) if finite else float('nan'):.1f}", upd_s=f"{updates_per_s:.0f}")
 
     program = compile_grid(ft, mesh, per_run)
+
     def on_start(stats):
         """π₀ at step 0 (chunk −1): the reference of the initial drop; curves start there."""
         if not lead:
@@ -584,8 +704,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
                  "diverged": not bool(np.all(np.isfinite(returns[i]))), "initial": True,
                  "dev_pi0": 0.0, "dev_pibar": 0.0, "grid_updates_per_s": float("nan")}
                 for i, point in enumerate(grid.points)]
-        with open(metrics_path, "a") as f:
-            f.writelines(json.dumps(r) + "\n" for r in rows)
+        _append_rows(metrics_path, rows)
         if tb is not None:
             _write_tensorboard(tb, rows)
 
@@ -598,18 +717,21 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     if tb is not None:
         for w in tb:
             w.close()
-    rows = [json.loads(line) for line in metrics_path.read_text().splitlines() if line]
+    rows, _ = read_jsonl(metrics_path)  # (null, as the file stores NaN, read back as NaN)
     grid_keys = [k for k in axes if len(axes[k]) > 1] or ["tau"]
     summary = summarize_runs(rows, grid_keys)
-    checkpoints.write_json_atomic(out / "summary.json", {
+    checkpoints.write_json_atomic(out / "summary.json", strict_json({
         "grid_keys": grid_keys, "points": summary, "env": cfg.env, "steps": cfg.steps, "method": args.algo,
         "dataset": dataset_name,
         "first_chunk_seconds_incl_compile": timing["first"],
-    })
+    }))
     print_table(summary, grid_keys)
     steady = [r["grid_updates_per_s"] for r in rows if r["chunk"] > 0]
-    print(f"\ncompile + first chunk: {timing['first'] or float('nan'):.1f} s; steady throughput "
-          f"{np.mean(steady) if steady else float('nan'):.0f} updates/s over the grid")
+    throughput = f"{np.mean(steady):.0f} updates/s over the grid" if steady else "not measured (one chunk)"
+    if timing["first"] is None:
+        print(f"\nno chunk left to run: the sweep in {out} was complete; steady throughput {throughput}")
+    else:
+        print(f"\ncompile + first chunk: {timing['first']:.1f} s; steady throughput {throughput}")
     if args.report:
         from proto_brax.report import make_report
 
@@ -694,21 +816,60 @@ def parse_args(argv: list[str] | None = None) -> SweepArgs:
                     description=f"{description} Presets (--preset NAME, before other flags): {presets}.")
 
 
+def debug_enabled(argv: list[str] | None = None) -> bool:
+    """Tracebacks of input errors: --debug on the command line or PROTO_BRAX_DEBUG=1 in the environment."""
+    argv = sys.argv[1:] if argv is None else argv
+    return "--debug" in argv or os.environ.get("PROTO_BRAX_DEBUG", "") not in ("", "0")
+
+
+# Errors that describe a bad input (flag, file, directory) and name the fix: one line, no traceback, exit status 2.
+INPUT_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError)
+
+
+def exit_on_input_error(fn, argv: list[str] | None = None):
+    """Run ``fn()``; an input error prints ``error: MESSAGE`` and exits with status 2 (the traceback with --debug or
+    PROTO_BRAX_DEBUG=1)."""
+    try:
+        return fn()
+    except INPUT_ERRORS as e:
+        if debug_enabled(argv):
+            raise
+        print(f"error: {e}\n(the traceback: rerun with --debug or PROTO_BRAX_DEBUG=1)", file=sys.stderr, flush=True)
+        raise SystemExit(2) from None
+
+
+def start_distributed(args: SweepArgs) -> None:
+    """jax.distributed.initialize() from the flags, each missing one left to jax's cluster detection (SLURM, Open
+    MPI, JAX_COORDINATOR_ADDRESS)."""
+    import jax
+
+    kw = {k: v for k, v in (("coordinator_address", args.coordinator), ("num_processes", args.num_processes),
+                            ("process_id", args.process_id)) if v is not None}
+    if args.coordinator is not None and (args.num_processes is None or args.process_id is None):
+        raise ValueError("--coordinator needs --num-processes N and --process-id I too (the same command on every "
+                         "process, each with its own --process-id).")
+    jax.distributed.initialize(**kw)
+
+
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(argv)
-    # Before JAX initializes its backend: host devices for sharding on CPU, and the scheduler fix MJX needs.
-    from proto_brax import envs
-    from proto_brax.train.grid import use_host_devices
+    def run() -> None:
+        args = parse_args(argv)
+        validate_args(args)  # before any backend starts
+        # Before JAX initializes its backend: host devices for sharding on CPU, and the scheduler fix MJX needs.
+        from proto_brax import envs
+        from proto_brax.train.grid import use_host_devices
 
-    if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":
-        os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
-    if args.distributed:
-        import jax
+        if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":
+            os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
+        if args.distributed or args.coordinator is not None:
+            if args.devices is not None:
+                use_host_devices(args.devices)
+            start_distributed(args)
+        else:
+            use_host_devices(args.devices)
+        run_sweep(args)
 
-        jax.distributed.initialize()
-    else:
-        use_host_devices(args.devices)
-    run_sweep(args)
+    exit_on_input_error(run, argv)
 
 
 if __name__ == "__main__":

@@ -124,6 +124,21 @@ def _from_arrays(arrays: Mapping[str, np.ndarray]) -> OfflineDataset:
     return Transition(**{name: arrays[name] for name in FIELDS})
 
 
+class NonFiniteDatasetError(ValueError):
+    """A dataset holding NaN or ±inf values: refused when loaded (or saved), before anything else reads it."""
+
+
+def check_finite(arrays: Mapping[str, np.ndarray], source: str, fix: str | None = None) -> None:
+    """Raise :class:`NonFiniteDatasetError` naming each field of ``arrays`` that holds NaN or ±inf, with the count."""
+    bad = {name: int(np.size(a) - np.count_nonzero(np.isfinite(a))) for name, a in arrays.items()
+           if np.issubdtype(np.asarray(a).dtype, np.floating)}
+    bad = {k: v for k, v in bad.items() if v}
+    if bad:
+        where = ", ".join(f"{n} in {k} (of {np.size(arrays[k])})" for k, v in bad.items() for n in [v])
+        raise NonFiniteDatasetError(f"dataset {source} holds non-finite values (NaN or ±inf): {where}; "
+                                    f"{fix or 'fix the data (or regenerate it) and try again'}.")
+
+
 # --------------------------------------------------------------------------------------------------------------------
 # Our .npz format
 # --------------------------------------------------------------------------------------------------------------------
@@ -143,6 +158,7 @@ def save_npz(path: PathLike, dataset: OfflineDataset, metadata: Mapping[str, Any
     """
     path = os.fspath(path)
     arrays = _canonical_arrays(dataset)
+    check_finite(arrays, repr(path), "nothing was written")
     full_metadata = dict(metadata)
     full_metadata["format_version"] = FORMAT_VERSION
     full_metadata["content_hash"] = _hash_arrays(arrays)
@@ -206,6 +222,7 @@ def load_npz(
         raise _corrupt(path, f"content hash {actual} does not match the stored {stored}", rebuild_hint)
     if expected_hash is not None and actual != expected_hash:
         raise _corrupt(path, f"content hash {actual} does not match the expected {expected_hash}", rebuild_hint)
+    check_finite(arrays, repr(path), f"rebuild it with: {rebuild_hint}" if rebuild_hint else None)
     return _from_arrays(arrays), metadata
 
 
@@ -323,6 +340,7 @@ def load_d4rl_hdf5(path: PathLike) -> tuple[OfflineDataset, dict[str, Any]]:
         rebuilt = True
 
     arrays = {name: np.ascontiguousarray(arrays[name], dtype=_DTYPE) for name in FIELDS}
+    check_finite(arrays, repr(path_str))
     metadata.update(source="d4rl-hdf5", path=os.path.abspath(path_str), rebuilt_next_observations=rebuilt)
     return _from_arrays(arrays), metadata
 
@@ -437,6 +455,7 @@ def load_minari(dataset_id_or_path: PathLike) -> tuple[OfflineDataset, dict[str,
     if not parts["rewards"]:
         raise ValueError(f"Minari dataset {dataset_id!r} has no episodes")
     arrays = {name: np.ascontiguousarray(np.concatenate(parts[name]), dtype=_DTYPE) for name in FIELDS}
+    check_finite(arrays, f"Minari {dataset_id!r}")
 
     raw = ds.storage.metadata
     env_spec = ds.env_spec
