@@ -22,6 +22,49 @@ from proto_brax.networks import NetworkConfig
 ALGOS = ("sac", "td3", "iql", "awac", "pex", "cql", "calql", "off2on")
 
 
+@dataclasses.dataclass(frozen=True)
+class Fidelity:
+    """Where PROTO-SAC / PROTO-TD3 here differ from the official PROTO code (github: Facebear-ljx/PROTO), one static
+    switch per difference. The defaults are this suite's choices (the paper's equations where the paper states one);
+    ``Fidelity.official()`` selects every choice of the official code. FIDELITY.md has, per row, the paper's
+    statement, the official code's file and line, and the measured effect.
+    """
+
+    actor_q: Literal["backup", "mean"] = "backup"
+    """SAC actor's Q over the critic ensemble: 'backup' = the target's reduction (min with clipped double-Q, else
+    mean); 'mean' = always the mean (official code: ``(q1 + q2) / 2``)."""
+    temperature_loss: Literal["log_alpha", "alpha"] = "log_alpha"
+    """SAC temperature loss: log α_sac · (H − H̄) (SAC v2's derivation) or α_sac · (H − H̄) (official code)."""
+    unclipped_target: Literal["mean", "random"] = "mean"
+    """Target when clipped double-Q is off (the paper's AntMaze setting; official TD3 also on Adroit): the ensemble
+    mean, or one target critic drawn at random per update (official code: REDQ-style ``subsample_ensemble`` of one)."""
+    td3_backup: Literal["paper", "official"] = "paper"
+    """PROTO-TD3 critic target. 'paper': Q̄(s′, a′_smoothed) − α‖π(s′) − π̄(s′)‖² per sample, a′ from the target
+    actor plus clipped noise. 'official': Q̄(s′, π̄(s′)) (no smoothing) − α · mean over batch and action dims of
+    (π(s′) + clipped noise − π̄(s′))², a batch-constant penalty."""
+    td3_actor_critic: Literal[0, 1] = 0
+    """Which critic PROTO-TD3's actor maximizes: Q₁ (TD3, TD3+BC) or Q₂ (official code unpacks ``q1, q1 = critic``
+    and so uses the second)."""
+    td3_expl_noise_clip: float | None = None
+    """PROTO-TD3's exploration noise N(0, σ²) clipped to ±c before the action is clipped to [−1, 1]; None = no clip
+    (TD3's own exploration); official 0.5 (with σ = 0.2, ``HParams.expl_noise``)."""
+    td3_penalty: Literal["sum", "mean"] = "sum"
+    """PROTO-TD3 actor penalty ‖π(s) − π̄(s)‖² summed over action dimensions (the norm) or averaged (official)."""
+    eval_mode: Literal["deterministic", "behaviour"] = "deterministic"
+    """Evaluation actions: the deterministic mean action, or the behaviour policy's (SAC: a sample; TD3: π(s) plus
+    clipped exploration noise). The official code evaluates AntMaze with the behaviour policy, MuJoCo and Adroit
+    deterministically, so ``official()`` leaves this to the AntMaze preset."""
+    online_preload: int = 0
+    """Offline rows (drawn at random) copied into the online buffer at the start; the official code preloads 10,000
+    (hard-coded) and then updates from the first env step, so its batches' offline share starts near 1 and decays as
+    ½ + ½·10⁴/(10⁴ + t). With 0 the online half of a symmetric batch holds online rows only."""
+
+    @classmethod
+    def official(cls) -> "Fidelity":
+        return cls(actor_q="mean", temperature_loss="alpha", unclipped_target="random", td3_backup="official",
+                   td3_actor_critic=1, td3_penalty="mean", online_preload=10_000, td3_expl_noise_clip=0.5)
+
+
 @struct.dataclass
 class HParams:
     """Traced scalar hyper-parameters (defaults: PROTO paper / reference code for MuJoCo, shared/FACTS.md).
@@ -44,7 +87,7 @@ class HParams:
     beta: jax.Array = 4.0  # TD3: λ = β / mean|Q| (paper: 4)
     policy_noise: jax.Array = 0.2  # TD3 target-policy smoothing noise
     noise_clip: jax.Array = 0.5
-    expl_noise: jax.Array = 0.1  # TD3 exploration noise
+    expl_noise: jax.Array = 0.1  # TD3 exploration noise σ
     # Baselines (proto_brax.methods): IQL / PEX (IQL's MuJoCo values, Kostrikov et al. 2022), AWAC (CORL's defaults).
     expectile: jax.Array = 0.7  # IQL / PEX expectile of the value regression
     awr_temperature: jax.Array = 3.0  # IQL / PEX inverse temperature β of the extraction weight exp(β (Q − V))
@@ -104,7 +147,7 @@ class FinetuneConfig:
     eval_episodes: int = 10  # deterministic evaluation episodes (vectorized)
     num_envs: int = 1  # parallel envs per run (each step inserts num_envs transitions)
     batch_size: int = 256
-    buffer_capacity: int | None = None  # online replay capacity; None = steps × num_envs
+    buffer_capacity: int | None = None  # online replay capacity; None = steps × num_envs + fidelity.online_preload
     sampling: Literal["symmetric", "union", "online"] = "symmetric"
     offline_fraction: float = 0.5  # share of each batch drawn from the offline data ("symmetric" mode)
     learning_starts: int = 1_000  # env steps collected before the first update
@@ -112,6 +155,7 @@ class FinetuneConfig:
     regularizer: bool = True  # False skips every π̄ computation: the same results as α₀ = 0, only cheaper
     value_reg_backup: bool = True  # the PROTO penalty inside the critic target (paper: off for AntMaze and Adroit)
     clipped_double_q: bool = True  # min over the critic ensemble (else mean; paper: off for AntMaze)
+    fidelity: Fidelity = Fidelity()  # switches for the official PROTO code's choices (FIDELITY.md)
     policy_delay: int = 2  # TD3: actor and targets update every policy_delay critic updates
     episode_length: int | None = None  # None = the env's registered length
     cql_n_actions: int = 10  # CQL / Cal-QL: sampled actions of each kind in the logsumexp (reference codes: 10)
@@ -140,6 +184,11 @@ class FinetuneConfig:
         if not (np.isfinite(self.reward_scale) and self.reward_scale > 0 and np.isfinite(self.reward_shift)):
             raise ValueError(f"reward_scale must be finite and > 0, reward_shift finite; got {self.reward_scale}, "
                              f"{self.reward_shift}.")
+        clip = self.fidelity.td3_expl_noise_clip
+        if clip is not None and not clip > 0:
+            raise ValueError(f"fidelity.td3_expl_noise_clip must be > 0 (or None: no clip); got {clip}.")
+        if self.fidelity.online_preload < 0:
+            raise ValueError(f"fidelity.online_preload must be >= 0; got {self.fidelity.online_preload}.")
         if self.buffer_capacity is not None and self.buffer_capacity < self.num_envs:
             raise ValueError(f"buffer_capacity must be >= num_envs; got {self.buffer_capacity}.")
 
@@ -149,7 +198,7 @@ class FinetuneConfig:
 
     @property
     def capacity(self) -> int:
-        return self.buffer_capacity or self.steps * self.num_envs
+        return self.buffer_capacity or self.steps * self.num_envs + self.fidelity.online_preload
 
     @property
     def horizon(self) -> int:

@@ -55,14 +55,16 @@ def tanh_gaussian_logp(u, mean, log_std):
     return normal_logpdf(u, mean, log_std) - np.sum(np.log(1.0 - np.tanh(u) ** 2), -1)
 
 
-def sac_critic_loss(actor, critic, critic_target, pibar, log_alpha_sac, batch, eps, alpha, gamma, backup, clip):
+def sac_critic_loss(actor, critic, critic_target, pibar, log_alpha_sac, batch, eps, alpha, gamma, backup, clip,
+                    member=None):
+    """PROTO-SAC's critic loss (Eq. 3); ``member``: without clipping, the one target critic used (official code)."""
     s, a, r, s2, d = (np.asarray(getattr(batch, f), np.float64) for f in
                       ("observations", "actions", "rewards", "next_observations", "terminals"))
     mean, log_std = gaussian_actor(actor, s2)
     u = mean + np.exp(log_std) * eps
     logp = tanh_gaussian_logp(u, mean, log_std)
     q_next = critics(critic_target, s2, np.tanh(u))
-    q_next = q_next.min(0) if clip else q_next.mean(0)
+    q_next = q_next.min(0) if clip else (q_next.mean(0) if member is None else q_next[member])
     v = q_next - np.exp(log_alpha_sac) * logp if backup else q_next  # no backup: no entropy term either
     if backup:
         mb, lb = gaussian_actor(pibar, s2)
@@ -72,7 +74,8 @@ def sac_critic_loss(actor, critic, critic_target, pibar, log_alpha_sac, batch, e
     return np.mean((q - y[None]) ** 2)
 
 
-def sac_actor_loss(actor, critic, pibar, log_alpha_sac, obs, eps, alpha, clip):
+def sac_actor_loss(actor, critic, pibar, log_alpha_sac, obs, eps, alpha, clip, mean_q=False):
+    """PROTO-SAC's actor loss (Eq. 4); ``mean_q``: the ensemble mean always (official code)."""
     s = np.asarray(obs, np.float64)
     mean, log_std = gaussian_actor(actor, s)
     u = mean + np.exp(log_std) * eps
@@ -80,28 +83,42 @@ def sac_actor_loss(actor, critic, pibar, log_alpha_sac, obs, eps, alpha, clip):
     mb, lb = gaussian_actor(pibar, s)
     kl = logp - tanh_gaussian_logp(u, mb, lb)
     q = critics(critic, s, np.tanh(u))
-    q = q.min(0) if clip else q.mean(0)
+    q = q.min(0) if clip and not mean_q else q.mean(0)
     return np.mean(np.exp(log_alpha_sac) * logp + alpha * kl - q)
 
 
-def td3_critic_loss(actor, actor_target, critic, critic_target, pibar, batch, noise, alpha, gamma, noise_clip, backup):
-    """y = r + γ (1 − d) [min Q̄(s′, clip(π_targ(s′) + clip(ε))) − α ‖π(s′) − π̄(s′)‖²] (PROTO-TD3, paper appendix)."""
+def td3_critic_loss(actor, actor_target, critic, critic_target, pibar, batch, noise, alpha, gamma, noise_clip, backup,
+                    official=False, penalty_mean=False):
+    """y = r + γ (1 − d) [min Q̄(s′, clip(π_targ(s′) + clip(ε))) − α ‖π(s′) − π̄(s′)‖²] (PROTO-TD3, paper appendix).
+
+    ``official``: the official code's y = r + γ (1 − d) [min Q̄(s′, π_targ(s′)) − α mean((π(s′) + clip(ε) − π̄(s′))²)],
+    the mean over the whole batch and the action dimensions."""
     s, a, r, s2, d = (np.asarray(getattr(batch, f), np.float64) for f in
                       ("observations", "actions", "rewards", "next_observations", "terminals"))
-    a2 = np.clip(det_actor(actor_target, s2) + np.clip(noise, -noise_clip, noise_clip), -1, 1)
+    eps = np.clip(noise, -noise_clip, noise_clip)
+    a2 = det_actor(actor_target, s2) if official else np.clip(det_actor(actor_target, s2) + eps, -1, 1)
     v = critics(critic_target, s2, a2).min(0)
-    if backup:
-        v = v - alpha * np.sum((det_actor(actor, s2) - det_actor(pibar, s2)) ** 2, -1)
+    if backup and official:
+        v = v - alpha * np.mean((det_actor(actor, s2) + eps - det_actor(pibar, s2)) ** 2)
+    elif backup:
+        sq = (det_actor(actor, s2) - det_actor(pibar, s2)) ** 2
+        v = v - alpha * (sq.mean(-1) if penalty_mean else sq.sum(-1))
     y = r + gamma * (1 - d) * v
     return np.mean((critics(critic, s, a) - y[None]) ** 2)
 
 
-def td3_actor_loss(actor, critic, pibar, obs, alpha, beta):
+def td3_actor_loss(actor, critic, pibar, obs, alpha, beta, member=0, penalty_mean=False):
     s = np.asarray(obs, np.float64)
     a = det_actor(actor, s)
-    q = critics(critic, s, a)[0]
+    q = critics(critic, s, a)[member]
     lam = beta / np.mean(np.abs(q))
-    return np.mean(-lam * q + alpha * np.sum((a - det_actor(pibar, s)) ** 2, -1))
+    sq = (a - det_actor(pibar, s)) ** 2
+    return np.mean(-lam * q + alpha * (sq.mean(-1) if penalty_mean else sq.sum(-1)))
+
+
+def temperature_loss(log_alpha_sac, logp, target_entropy, form):
+    scale = np.exp(log_alpha_sac) if form == "alpha" else log_alpha_sac
+    return scale * np.mean(-np.asarray(logp, np.float64) - target_entropy)
 
 
 def value_net(params, obs, layer_norm=True):

@@ -13,7 +13,7 @@ from helpers import perturb
 
 from proto_brax.algorithms import regularizer, sac, td3
 from proto_brax.algorithms.learner import init_learner
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.config import Fidelity, FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import NetworkConfig, make_networks, tanh_gaussian_log_prob
 from proto_brax.train.online import ALGORITHMS
@@ -68,6 +68,49 @@ def test_sac_actor_loss_matches_numpy(clip):
     np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
 
 
+def test_sac_critic_loss_random_target_member_matches_numpy():
+    """Fidelity.unclipped_target='random': one target critic, drawn with fold_in(key, 1), replaces the mean."""
+    cfg, nets, hp, lrn, batch = _setup("sac", clipped_double_q=False,
+                                       fidelity=Fidelity(unclipped_target="random"))
+    losses = set()
+    for seed in range(6):
+        key = jax.random.PRNGKey(20 + seed)
+        loss, _ = sac.critic_loss(lrn.critic, lrn, batch, key, 1.1, hp, nets, cfg)
+        member = int(jax.random.randint(jax.random.fold_in(key, 1), (), 0, 2))
+        eps = np.asarray(jax.random.normal(key, (B, ACT)), np.float64)
+        expected = ref.sac_critic_loss(lrn.actor, lrn.critic, lrn.critic_target, lrn.pibar, float(lrn.log_alpha_sac),
+                                       batch, eps, 1.1, 0.9, True, False, member=member)
+        np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
+        losses.add(member)
+    assert losses == {0, 1}  # both members are drawn
+
+
+@pytest.mark.parametrize("clip", [True, False])
+def test_sac_actor_loss_mean_q_matches_numpy(clip):
+    """Fidelity.actor_q='mean': the actor maximizes the ensemble mean even with clipped double-Q (official code)."""
+    cfg, nets, hp, lrn, batch = _setup("sac", clipped_double_q=clip, fidelity=Fidelity(actor_q="mean"))
+    key, alpha = jax.random.PRNGKey(8), 0.6
+    loss, _ = sac.actor_loss(lrn.actor, lrn.critic, lrn, batch.observations, key, alpha, nets, cfg)
+    eps = np.asarray(jax.random.normal(key, (B, ACT)), np.float64)
+    expected = ref.sac_actor_loss(lrn.actor, lrn.critic, lrn.pibar, float(lrn.log_alpha_sac), batch.observations,
+                                  eps, alpha, clip, mean_q=True)
+    np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
+    if clip:  # differs from the default on distinct critics
+        default = ref.sac_actor_loss(lrn.actor, lrn.critic, lrn.pibar, float(lrn.log_alpha_sac), batch.observations,
+                                     eps, alpha, clip)
+        assert abs(expected - default) > 1e-4
+
+
+@pytest.mark.parametrize("form", ["log_alpha", "alpha"])
+def test_temperature_loss_forms_match_numpy(form):
+    log_alpha, logp = jnp.float32(np.log(0.2)), jnp.array([0.3, -1.2, 0.8, 2.0])
+    value, grad = jax.value_and_grad(sac.temperature_loss)(log_alpha, logp, -1.0, form)
+    np.testing.assert_allclose(float(value), ref.temperature_loss(np.log(0.2), logp, -1.0, form), rtol=1e-6)
+    # d/d log α: (H − H̄) for log α, α (H − H̄) for α: the official form moves log α α-times slower.
+    h_gap = float(np.mean(-np.asarray(logp)) + 1.0)
+    np.testing.assert_allclose(float(grad), h_gap * (0.2 if form == "alpha" else 1.0), rtol=1e-5)
+
+
 def test_sac_alpha_zero_is_plain_sac():
     """α = 0: the PROTO terms vanish exactly, whatever π̄ is, and equal SAC without the regularizer."""
     cfg, nets, hp, lrn, batch = _setup("sac", value_reg_backup=True)
@@ -112,12 +155,42 @@ def test_td3_backup_penalizes_the_current_actor():
     assert abs(np.mean(0.9 * (1 - np.asarray(batch.terminals)) * alpha * (pen - old_pen))) > 1e-3
 
 
-@pytest.mark.parametrize("alpha", [0.0, 2.5])
-def test_td3_actor_loss_matches_numpy(alpha):
-    cfg, nets, hp, lrn, batch = _setup("td3")
-    loss, _ = td3.actor_loss(lrn.actor, lrn.critic, lrn, batch.observations, alpha, hp, nets)
-    expected = ref.td3_actor_loss(lrn.actor, lrn.critic, lrn.pibar, batch.observations, alpha, 4.0)
+@pytest.mark.parametrize("penalty_mean", [False, True])
+def test_td3_critic_loss_official_and_mean_penalty_match_numpy(penalty_mean):
+    """Fidelity.td3_backup='official' (Q̄ at π_targ(s′) unsmoothed, batch-mean penalty on the noisy current action),
+    and the paper's backup with the per-dimension mean penalty."""
+    fid = Fidelity(td3_backup="official") if penalty_mean else Fidelity(td3_penalty="mean")
+    cfg, nets, hp, lrn, batch = _setup("td3", fidelity=fid)
+    key, alpha = jax.random.PRNGKey(12), 1.3
+    loss, _ = td3.critic_loss(lrn.critic, lrn, batch, key, alpha, hp, nets, cfg)
+    noise = 0.2 * np.asarray(jax.random.normal(key, (B, ACT)), np.float64)
+    expected = ref.td3_critic_loss(lrn.actor, lrn.actor_target, lrn.critic, lrn.critic_target, lrn.pibar, batch, noise,
+                                   alpha, 0.9, 0.5, True, official=penalty_mean, penalty_mean=not penalty_mean)
     np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
+
+
+@pytest.mark.parametrize("alpha", [0.0, 2.5])
+@pytest.mark.parametrize("member,penalty", [(0, "sum"), (1, "mean")])
+def test_td3_actor_loss_matches_numpy(alpha, member, penalty):
+    cfg, nets, hp, lrn, batch = _setup("td3", fidelity=Fidelity(td3_actor_critic=member, td3_penalty=penalty))
+    loss, _ = td3.actor_loss(lrn.actor, lrn.critic, lrn, batch.observations, alpha, hp, nets, cfg)
+    expected = ref.td3_actor_loss(lrn.actor, lrn.critic, lrn.pibar, batch.observations, alpha, 4.0, member=member,
+                                  penalty_mean=penalty == "mean")
+    np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
+
+
+def test_td3_exploration_noise_clip():
+    """td3_expl_noise_clip bounds the exploration noise (official 0.5); None leaves it unclipped."""
+    cfg, nets, _, lrn, _ = _setup("td3")
+    obs = jax.random.normal(jax.random.PRNGKey(13), (400, OBS))
+    key, hp = jax.random.PRNGKey(14), HParams.create(expl_noise=3.0)
+    a = np.asarray(nets.actor.apply(lrn.actor, obs), np.float64)
+    eps = 3.0 * np.asarray(jax.random.normal(key, a.shape), np.float64)
+    for clip in (0.5, None):
+        got = td3.act(nets, lrn, obs, key, hp, deterministic=False, noise_clip=clip)
+        bounded = eps if clip is None else np.clip(eps, -clip, clip)
+        np.testing.assert_allclose(np.asarray(got), np.clip(a + bounded, -1, 1), atol=1e-6)
+    assert np.abs(np.clip(eps, -0.5, 0.5) - eps).max() > 1  # the clip binds on these draws
 
 
 def test_alpha_schedule_values():

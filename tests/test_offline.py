@@ -51,7 +51,7 @@ def test_eql_value_loss_gradient_vanishes_at_q():
 
 def test_sql_value_loss_and_weight():
     q, v = QV
-    u = (q - v) / 1.5 + 0.5
+    u = (q - v) / (2 * 1.5) + 1.0  # IVR: sp_term = (q − v) / (2α) + 1
     expected = np.mean(np.where(u > 0, u**2, 0.0) + v / 1.5)
     np.testing.assert_allclose(sql.value_loss(jnp.asarray(q), jnp.asarray(v), HP), expected, rtol=1e-5)
     np.testing.assert_allclose(sql.weight(jnp.asarray(q), jnp.asarray(v), HP), np.clip(q - v, 0, 100), rtol=1e-6)

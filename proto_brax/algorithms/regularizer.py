@@ -29,9 +29,11 @@ def kl_penalty(u: jax.Array, mean: jax.Array, log_std: jax.Array, mean_bar: jax.
     return gaussian_log_prob(u, mean, log_std) - gaussian_log_prob(u, mean_bar, log_std_bar)
 
 
-def mse_penalty(action: jax.Array, action_bar: jax.Array) -> jax.Array:
-    """‖π(s) − π̄(s)‖², summed over action dimensions (PROTO-TD3)."""
-    return jnp.sum(jnp.square(action - action_bar), axis=-1)
+def mse_penalty(action: jax.Array, action_bar: jax.Array, reduce: str = "sum") -> jax.Array:
+    """‖π(s) − π̄(s)‖², summed over action dimensions (PROTO-TD3); ``reduce='mean'`` averages them instead (the
+    official code's ``((a − a_k) ** 2).mean()``: the same penalty divided by |A|)."""
+    sq = jnp.square(action - action_bar)
+    return jnp.mean(sq, axis=-1) if reduce == "mean" else jnp.sum(sq, axis=-1)
 
 
 def polyak(new, old, tau: jax.Array):

@@ -22,6 +22,20 @@ def reduce_q(q: jax.Array, clipped_double_q: bool) -> jax.Array:
     return jnp.min(q, axis=0) if clipped_double_q else jnp.mean(q, axis=0)
 
 
+def target_q(q: jax.Array, cfg: FinetuneConfig, key: jax.Array) -> jax.Array:
+    """The backup's reduction of the target ensemble [E, B]: min with clipped double-Q; without it the mean, or one
+    member drawn at random per update (``Fidelity.unclipped_target='random'``, the official code's REDQ-style
+    subsample of one)."""
+    if cfg.clipped_double_q or cfg.fidelity.unclipped_target == "mean":
+        return reduce_q(q, cfg.clipped_double_q)
+    return q[jax.random.randint(key, (), 0, q.shape[0])]
+
+
+def actor_q(q: jax.Array, cfg: FinetuneConfig) -> jax.Array:
+    """The actor's reduction of the ensemble: the backup's (min or mean), or always the mean (official code)."""
+    return jnp.mean(q, axis=0) if cfg.fidelity.actor_q == "mean" else reduce_q(q, cfg.clipped_double_q)
+
+
 def critic_loss(
     critic, learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
     nets: Networks, cfg: FinetuneConfig,
@@ -29,13 +43,16 @@ def critic_loss(
     """Critic loss with the PROTO backup (Eq. 3).
 
     y = r + γ (1 − d) [Q̄(s′, a′) − α_sac log π(a′|s′) − α (log π(a′|s′) − log π̄(a′|s′))],  a′ ~ π(·|s′),
-    where Q̄ is min (or mean) over the target ensemble. Without ``value_reg_backup`` (the paper's AntMaze and Adroit
-    setting) the bracket is Q̄(s′, a′) alone: the reference code's ``entropy_backup=False`` drops SAC's entropy term
-    together with the PROTO term. Loss = mean over ensemble members and batch of (Q_i(s, a) − y)².
+    where Q̄ is min (or mean, or a random member: ``target_q``) over the target ensemble. Without
+    ``value_reg_backup`` (the paper's AntMaze and Adroit setting) the bracket is Q̄(s′, a′) alone: the reference
+    code's ``entropy_backup=False`` drops SAC's entropy term together with the PROTO term. Loss = mean over ensemble
+    members and batch of (Q_i(s, a) − y)².
     """
     mean, log_std = nets.actor.apply(learner.actor, batch.next_observations)
     a_next, u_next, logp_next = sample_tanh_gaussian(key, mean, log_std)
-    q_next = reduce_q(nets.critic.apply(learner.critic_target, batch.next_observations, a_next), cfg.clipped_double_q)
+    # fold_in: the random member's key leaves the sample's key (and so every default run) unchanged.
+    q_next = target_q(nets.critic.apply(learner.critic_target, batch.next_observations, a_next), cfg,
+                      jax.random.fold_in(key, 1))
     v_next = q_next - jnp.exp(learner.log_alpha_sac) * logp_next if cfg.value_reg_backup else q_next
     if cfg.regularizer and cfg.value_reg_backup:
         mean_bar, log_std_bar = nets.actor.apply(learner.pibar, batch.next_observations)
@@ -50,7 +67,8 @@ def actor_loss(
     actor, critic, learner: Learner, obs: jax.Array, key: jax.Array, alpha: jax.Array,
     nets: Networks, cfg: FinetuneConfig,
 ):
-    """Actor loss with the PROTO penalty (Eq. 4): E[α_sac log π(a|s) + α (log π(a|s) − log π̄(a|s)) − Q(s, a)]."""
+    """Actor loss with the PROTO penalty (Eq. 4): E[α_sac log π(a|s) + α (log π(a|s) − log π̄(a|s)) − Q(s, a)],
+    Q the ensemble's min or mean (``actor_q``)."""
     mean, log_std = nets.actor.apply(actor, obs)
     a, u, logp = sample_tanh_gaussian(key, mean, log_std)
     if cfg.regularizer:
@@ -58,15 +76,21 @@ def actor_loss(
         kl = kl_penalty(u, mean, log_std, lax.stop_gradient(mean_bar), lax.stop_gradient(log_std_bar))
     else:
         kl = jnp.zeros_like(logp)
-    q = reduce_q(nets.critic.apply(critic, obs, a), cfg.clipped_double_q)
+    q = actor_q(nets.critic.apply(critic, obs, a), cfg)
     alpha_sac = lax.stop_gradient(jnp.exp(learner.log_alpha_sac))
     loss = jnp.mean(alpha_sac * logp + alpha * kl - q)
     return loss, {"actor_loss": loss, "entropy": -jnp.mean(logp), "kl_pibar": jnp.mean(kl), "log_prob": logp}
 
 
-def temperature_loss(log_alpha_sac: jax.Array, log_prob: jax.Array, target_entropy: jax.Array) -> jax.Array:
-    """SAC's automatic entropy tuning: minimize log α_sac · (H(π) − H̄) with H(π) ≈ −log π(a|s) (stop-gradient)."""
-    return log_alpha_sac * jnp.mean(lax.stop_gradient(-log_prob) - target_entropy)
+def temperature_loss(log_alpha_sac: jax.Array, log_prob: jax.Array, target_entropy: jax.Array,
+                     form: str = "log_alpha") -> jax.Array:
+    """SAC's automatic entropy tuning: minimize log α_sac · (H(π) − H̄) with H(π) ≈ −log π(a|s) (stop-gradient).
+
+    ``form='alpha'`` minimizes α_sac · (H − H̄) instead (the official PROTO code, as jaxrl's SAC): the same sign of
+    the gradient in log α_sac, scaled by α_sac, so a small temperature moves more slowly.
+    """
+    scale = jnp.exp(log_alpha_sac) if form == "alpha" else log_alpha_sac
+    return scale * jnp.mean(lax.stop_gradient(-log_prob) - target_entropy)
 
 
 def update(
@@ -87,7 +111,8 @@ def update(
     actor, actor_opt = apply_grads(grads, learner.actor_opt, learner.actor)
 
     target_entropy = hp.target_entropy_scale * batch.actions.shape[-1]
-    t_loss, grads = jax.value_and_grad(temperature_loss)(learner.log_alpha_sac, a_info.pop("log_prob"), target_entropy)
+    t_loss, grads = jax.value_and_grad(temperature_loss)(learner.log_alpha_sac, a_info.pop("log_prob"), target_entropy,
+                                                         cfg.fidelity.temperature_loss)
     log_alpha_sac, alpha_opt = apply_grads(grads, learner.alpha_opt, learner.log_alpha_sac)
 
     learner = learner.replace(

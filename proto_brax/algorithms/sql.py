@@ -9,8 +9,10 @@ from proto_brax.algorithms.insample import OfflineHParams, insample_update
 
 
 def value_loss(q: jax.Array, v: jax.Array, hp: OfflineHParams) -> jax.Array:
-    """E[1(u > 0) · u² + V/α] with u = (Q − V)/α + 1/2 (IVR's SQL objective: samples with u ≤ 0 get no weight)."""
-    u = (q - v) / hp.alpha + 0.5
+    """E[1(u > 0) · u² + V/α] with u = (Q − V)/(2α) + 1 (IVR's SQL objective, Xu et al. 2023, and its reference code;
+    samples with u ≤ 0 get no weight). Before issue 35 this was u = (Q − V)/α + 1/2, which is IVR's loss at α/4 up to a
+    factor: a silently different regularization strength."""
+    u = (q - v) / (2.0 * hp.alpha) + 1.0
     return jnp.mean(jnp.where(u > 0, u**2, 0.0) + v / hp.alpha)
 
 

@@ -15,7 +15,7 @@ from jax import lax
 
 from proto_brax.algorithms.learner import Learner, OnlineAlgorithm, apply_grads
 from proto_brax.algorithms.regularizer import mse_penalty, polyak
-from proto_brax.algorithms.sac import reduce_q
+from proto_brax.algorithms.sac import target_q
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks
@@ -28,14 +28,21 @@ def critic_loss(
     """y = r + γ (1 − d) [Q̄(s′, a′) − α ‖π(s′) − π̄(s′)‖²], a′ = clip(π_targ(s′) + clip(ε, ±c), ±1), ε ~ N(0, σ²).
 
     The penalty is the current actor's distance to π̄ at s′ (paper, appendix), not the smoothed target action's.
+    ``Fidelity.td3_backup='official'`` is the official code's target instead:
+    y = r + γ (1 − d) [Q̄(s′, π_targ(s′)) − α · mean_{batch, dims} (π(s′) + clip(ε, ±c) − π̄(s′))²].
     """
     s2 = batch.next_observations
     a_targ = nets.actor.apply(learner.actor_target, s2)
     noise = jnp.clip(hp.policy_noise * jax.random.normal(key, a_targ.shape), -hp.noise_clip, hp.noise_clip)
-    a_next = jnp.clip(a_targ + noise, -1.0, 1.0)
-    v_next = reduce_q(nets.critic.apply(learner.critic_target, s2, a_next), cfg.clipped_double_q)
+    official = cfg.fidelity.td3_backup == "official"
+    a_next = a_targ if official else jnp.clip(a_targ + noise, -1.0, 1.0)
+    v_next = target_q(nets.critic.apply(learner.critic_target, s2, a_next), cfg, jax.random.fold_in(key, 1))
     if cfg.regularizer and cfg.value_reg_backup:
-        v_next = v_next - alpha * mse_penalty(nets.actor.apply(learner.actor, s2), nets.actor.apply(learner.pibar, s2))
+        a_pi, a_bar = nets.actor.apply(learner.actor, s2), nets.actor.apply(learner.pibar, s2)
+        if official:
+            v_next = v_next - alpha * jnp.mean(jnp.square(a_pi + noise - a_bar))
+        else:
+            v_next = v_next - alpha * mse_penalty(a_pi, a_bar, cfg.fidelity.td3_penalty)
     target = lax.stop_gradient(batch.rewards + hp.gamma * (1.0 - batch.terminals) * v_next)
     q = nets.critic.apply(critic, batch.observations, batch.actions)
     loss = jnp.mean(jnp.square(q - target))
@@ -44,14 +51,15 @@ def critic_loss(
 
 def actor_loss(
     actor, critic, learner: Learner, obs: jax.Array, alpha: jax.Array, hp: HParams, nets: Networks,
-    regularizer: bool = True,
+    cfg: FinetuneConfig,
 ):
-    """E[−λ Q₁(s, π(s)) + α ‖π(s) − π̄(s)‖²], λ = β / mean|Q₁(s, π(s))| (stop-gradient)."""
+    """E[−λ Q_k(s, π(s)) + α ‖π(s) − π̄(s)‖²], λ = β / mean|Q_k(s, π(s))| (stop-gradient); k = 1 (TD3+BC) or 2
+    (``Fidelity.td3_actor_critic``, the official code); the penalty summed or averaged over action dimensions."""
     a = nets.actor.apply(actor, obs)
-    q = nets.critic.apply(critic, obs, a)[0]
+    q = nets.critic.apply(critic, obs, a)[cfg.fidelity.td3_actor_critic]
     lam = lax.stop_gradient(hp.beta / jnp.mean(jnp.abs(q)))
-    if regularizer:
-        penalty = mse_penalty(a, lax.stop_gradient(nets.actor.apply(learner.pibar, obs)))
+    if cfg.regularizer:
+        penalty = mse_penalty(a, lax.stop_gradient(nets.actor.apply(learner.pibar, obs)), cfg.fidelity.td3_penalty)
     else:
         penalty = jnp.zeros_like(q)
     loss = jnp.mean(-lam * q + alpha * penalty)
@@ -75,7 +83,7 @@ def update(
 
     def actor_step(learner):
         (_, a_info), grads = jax.value_and_grad(actor_loss, has_aux=True)(
-            learner.actor, learner.critic, learner, batch.observations, alpha, hp, nets, cfg.regularizer
+            learner.actor, learner.critic, learner, batch.observations, alpha, hp, nets, cfg
         )
         actor, actor_opt = apply_grads(grads, learner.actor_opt, learner.actor)
         learner = learner.replace(
@@ -96,12 +104,16 @@ def update(
 
 
 def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: HParams | None,
-        deterministic: bool) -> jax.Array:
-    """π(s) plus Gaussian exploration noise (clipped to the action box); π(s) alone for evaluation."""
+        deterministic: bool, noise_clip: float | None = None) -> jax.Array:
+    """π(s) plus Gaussian exploration noise N(0, σ²) (clipped to ±c with ``Fidelity.td3_expl_noise_clip``, the
+    official code's 0.5), the sum clipped to the action box; π(s) alone for evaluation."""
     a = nets.actor.apply(learner.actor, obs)
     if deterministic:
         return a
-    return jnp.clip(a + hp.expl_noise * jax.random.normal(key, a.shape), -1.0, 1.0)
+    noise = hp.expl_noise * jax.random.normal(key, a.shape)
+    if noise_clip is not None:  # static: the default program has no clip at all (bit-identical to before)
+        noise = jnp.clip(noise, -noise_clip, noise_clip)
+    return jnp.clip(a + noise, -1.0, 1.0)
 
 
 def deviation(nets: Networks, actor, other, obs: jax.Array, key: jax.Array) -> jax.Array:

@@ -16,6 +16,7 @@ None of them knows about grids: a sweep is ``jit(vmap(fn, in_axes=(0, 0, None, N
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Callable
 
 import jax
@@ -65,6 +66,8 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
     env = envs.make_env(cfg.env, cfg.backend)
     obs_size, act_size = env.observation_size, env.action_size
     algo = ALGORITHMS[cfg.algo]
+    if cfg.algo == "td3" and cfg.fidelity.td3_expl_noise_clip is not None:  # a static choice inside TD3's act
+        algo = dataclasses.replace(algo, act=functools.partial(td3.act, noise_clip=cfg.fidelity.td3_expl_noise_clip))
     nets = make_networks(cfg.net, act_size, deterministic=cfg.algo == "td3")
     horizon = cfg.horizon
     if algo.mc_returns and cfg.capacity < horizon * cfg.num_envs:
@@ -80,15 +83,24 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
                 f"Dataset observations have size {dataset.observations.shape[-1]} but env {cfg.env!r} has "
                 f"{obs_size}: use a dataset made for {cfg.env!r}."
             )
+        preload = cfg.fidelity.online_preload
+        if preload and (dataset is None or algo.mc_returns):
+            raise ValueError("fidelity.online_preload copies offline rows into the online buffer: it needs a dataset "
+                             "and an algo without Monte-Carlo returns (not calql); use online_preload 0.")
         k_learner, k_env, k_run = jax.random.split(key, 3)
         if algo.init is not None:
             learner = algo.init(k_learner, nets, cfg, hp, obs_size, act_size, pretrained, dataset)
         else:
             learner = init_learner(k_learner, nets, algo, hp, obs_size, act_size, pretrained)
         env_state = jax.vmap(lambda k: envs.env_reset(env, k))(jax.random.split(k_env, cfg.num_envs))
+        buffer = replay_init(cfg.capacity, obs_size, act_size, mc_returns=algo.mc_returns)
+        if preload:  # fold_in: the default runs' keys stay as they were
+            rows = jax.random.choice(jax.random.fold_in(key, 0x9E10AD), dataset.rewards.shape[0], (preload,),
+                                     replace=preload > dataset.rewards.shape[0])
+            buffer = replay_insert(buffer, jax.tree.map(lambda x: x[rows], dataset.replace(mc_returns=None)))
         return TrainState(
             learner=learner,
-            buffer=replay_init(cfg.capacity, obs_size, act_size, mc_returns=algo.mc_returns),
+            buffer=buffer,
             env=env_state,
             key=k_run,
             step=jnp.zeros((), jnp.int32),
@@ -142,10 +154,14 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
         new = TrainState(learner=learner, buffer=buffer, env=env_state, key=key, step=state.step + 1)
         return new, (stats, updated)
 
-    def evaluate(learner: Learner, key: jax.Array) -> EpisodeStats:
+    def evaluate(learner: Learner, key: jax.Array, hp: HParams | None = None) -> EpisodeStats:
         """Returns, lengths and success steps of ``eval_episodes`` deterministic episodes run side by side (each to
-        termination or horizon; on a goal task the length is the steps to the goal)."""
-        policy = lambda obs, k: algo.act(nets, learner, obs, k, None, deterministic=True)  # noqa: E731
+        termination or horizon; on a goal task the length is the steps to the goal). With ``Fidelity.eval_mode =
+        'behaviour'`` the episodes act as in training (the official code's AntMaze evaluation); TD3's exploration
+        noise then comes from ``hp`` (default HParams when None)."""
+        deterministic = cfg.fidelity.eval_mode == "deterministic"
+        hp = HParams.create() if hp is None and not deterministic else hp
+        policy = lambda obs, k: algo.act(nets, learner, obs, k, hp, deterministic=deterministic)  # noqa: E731
         return run_episode_stats(env, horizon, policy, key, cfg.eval_episodes)
 
     def chunk(state: TrainState, hp: HParams, dataset, start: jax.Array):
@@ -160,7 +176,7 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
                    if k not in host_keys}
         episodes = jnp.sum(stats["episodes"])
         key, k_eval, k_batch, k_dev1, k_dev2 = jax.random.split(state.key, 5)
-        returns, lengths, success_steps = evaluate(state.learner, k_eval)
+        returns, lengths, success_steps = evaluate(state.learner, k_eval, hp)
         # Policy drift diagnostics on a fresh training batch: KL(π‖π̄) and KL(π‖π₀) (TD3: mean squared distance).
         batch = replay_sample(k_batch, state.buffer, dataset, cfg.batch_size, cfg.sampling, cfg.offline_fraction)
         lrn = state.learner
