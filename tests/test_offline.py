@@ -32,14 +32,16 @@ def _batch(seed=0):
 QV = (np.array([1.0, -2.0, 0.5, 3.0, 9.0, -0.1]), np.array([0.5, -1.0, 0.5, -1.0, 0.0, 0.3]))
 
 
-def test_eql_value_loss_and_weight():
-    q, v = QV
-    z = np.minimum((q - v) / 1.5, 5.0)
+@pytest.mark.parametrize("z_clip,scale", [(5.0, 10.0), (7.0, 1.0)])  # IVR's code; the official PROTO code's
+def test_eql_value_loss_and_weight(z_clip, scale):
+    q, v = QV  # (9 − 0)/1.5 = 6 lies between the two clips
+    hp = HP.replace(eql_z_clip=jnp.float32(z_clip), eql_weight_scale=jnp.float32(scale))
+    z = np.minimum((q - v) / 1.5, z_clip)
     m = max(z.max(), -1.0)
     expected = np.mean(np.exp(z - m) - z * np.exp(-m) - np.exp(-m))
-    np.testing.assert_allclose(eql.value_loss(jnp.asarray(q), jnp.asarray(v), HP), expected, rtol=1e-5)
-    np.testing.assert_allclose(eql.weight(jnp.asarray(q), jnp.asarray(v), HP),
-                               np.minimum(np.exp(10 * (q - v) / 1.5), 100.0), rtol=1e-5)
+    np.testing.assert_allclose(eql.value_loss(jnp.asarray(q), jnp.asarray(v), hp), expected, rtol=1e-5)
+    np.testing.assert_allclose(eql.weight(jnp.asarray(q), jnp.asarray(v), hp),
+                               np.minimum(np.exp(scale * (q - v) / 1.5), 100.0), rtol=1e-5)
 
 
 def test_eql_value_loss_gradient_vanishes_at_q():

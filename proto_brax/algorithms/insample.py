@@ -27,7 +27,8 @@ class OfflineHParams:
     alpha: jax.Array = 2.0  # EQL/SQL value-regularization temperature (paper: 2.0 MuJoCo, 0.5 AntMaze)
     expectile: jax.Array = 0.7  # IQL expectile (MuJoCo)
     temperature: jax.Array = 3.0  # IQL AWR inverse temperature β (MuJoCo)
-    eql_weight_scale: jax.Array = 10.0  # EQL extraction weight exp(scale · (Q − V) / α)
+    eql_weight_scale: jax.Array = 10.0  # EQL extraction weight exp(scale · (Q − V) / α) (IVR's code; PROTO's code 1)
+    eql_z_clip: jax.Array = 5.0  # EQL value loss: z = (Q − V)/α clipped at this value (IVR's code 5; PROTO's code 7)
     weight_max: jax.Array = 100.0  # extraction weights are clipped to [0, weight_max]
     gamma: jax.Array = 0.99
     target_tau: jax.Array = 5e-3
