@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from test_engine import SCRATCH, TINY, point_dataset
 
-from proto_brax.config import Fidelity, HParams
+from proto_brax.config import HParams
 from proto_brax.data.replay import replay_sample
+from proto_brax.fidelity import Fidelity
 from proto_brax.train import online
 
 CFG = dataclasses.replace(TINY, steps=400, eval_every=200, sampling="symmetric", learning_starts=1)

@@ -13,8 +13,9 @@ from helpers import perturb
 
 from proto_brax.algorithms import regularizer, sac, td3
 from proto_brax.algorithms.learner import init_learner
-from proto_brax.config import Fidelity, FinetuneConfig, HParams
+from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
+from proto_brax.fidelity import Fidelity
 from proto_brax.networks import NetworkConfig, make_networks, tanh_gaussian_log_prob
 from proto_brax.train.online import ALGORITHMS
 
