@@ -862,8 +862,10 @@ def main(argv: list[str] | None = None) -> None:
         if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":
             os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
         if args.distributed or args.coordinator is not None:
-            if args.devices is not None:
-                use_host_devices(args.devices)
+            if args.devices is not None:  # (use_host_devices would start the backend: initialize() must come first)
+                import jax
+
+                jax.config.update("jax_num_cpu_devices", args.devices)
             start_distributed(args)
         else:
             use_host_devices(args.devices)

@@ -50,11 +50,13 @@ def test_sigkill_then_resume_matches_uninterrupted(tmp_path):
     p.wait()
     n_before = len((killed / "metrics.jsonl").read_text().splitlines())
     assert n_before < 28, "the sweep finished before it could be killed"
+    with open(killed / "metrics.jsonl", "a") as f:  # and a kill inside an append (issue 32): a torn last line
+        f.write('{"chunk": 5, "run": 0, "eval_ret')
 
     p = _run(killed, "--resume")
     out, _ = p.communicate(timeout=600)
     assert p.returncode == 0, out
-    assert "resumed after chunk" in out
+    assert "resumed after chunk" in out and "dropped a torn last line" in out
     a, b = _metrics(full), _metrics(killed)
     assert a.keys() == b.keys() and len(a) == 28  # 4 runs × (π₀ at step 0 + 6 chunks), none logged twice
     for k in a:
