@@ -41,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from proto_brax.envs import single_thread_xla_flags  # noqa: E402
-from proto_brax.files import atomic_write, copy_atomic  # noqa: E402
+from proto_brax.files import atomic_write, copy_atomic, nan_for_null  # noqa: E402
 from proto_brax.methods import METHODS, Method  # noqa: E402
 from proto_brax.sweep import PRESETS  # noqa: E402
 
@@ -180,7 +180,7 @@ def main(args: Args) -> None:
                     print(f"FAILED: {dataset} {method}", flush=True)
                     continue
             publish(dataset, method, args)
-            summary = json.loads((out / "summary.json").read_text())
+            summary = nan_for_null(json.loads((out / "summary.json").read_text()))  # a diverged run's null
             for point in summary["points"]:
                 where = " ".join(f"{k} {point[k]:g}" for k in summary["grid_keys"])
                 print(f"  {where}: final normalized {point['final_normalized_score']['mean']:.1f} ± "

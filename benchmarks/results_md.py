@@ -190,7 +190,7 @@ def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
              "| seeds | buffer data |",
              "|---|---|---|---|---|---|---|---|"]
     for m in methods_of(per):
-        lines.append(f"| {m} | {fmt(per[m]['offline'])} | {score_cells(per[m]['runs'])} | "
+        lines.append(f"| {label(m, per[m])} | {fmt(per[m]['offline'])} | {score_cells(per[m]['runs'])} | "
                      f"{buffer_data(per[m]['config'])} |")
     return lines + ["", f"![{dataset} learning curves](results/locomotion/{dataset}/curves.png)", ""]
 
@@ -421,6 +421,29 @@ def coverage(table) -> list[str]:
             f"{', '.join(none) or 'none'}. Every claim below is about the published sweeps only.", ""]
 
 
+def pre_fix_td3(per_method: dict) -> bool:
+    """A proto-td3 sweep run before issue 35 fixed its critic backup (the penalty was on the smoothed target action,
+    α‖clip(ε)‖²). Sweeps since then record the fidelity switches in their finetune config; earlier ones do not."""
+    return "fidelity" not in per_method["config"].get("finetune", {})
+
+
+def td3_fix_status(table) -> list[str]:
+    """How many published proto-td3 sweeps use the fixed backup; the rest are named (marked † in the tables)."""
+    sweeps = [(d, per["proto-td3"]) for d, per in sorted(table.items()) if "proto-td3" in per]
+    old = [d for d, m in sweeps if pre_fix_td3(m)]
+    if not old:
+        return []
+    return [f"**PROTO-TD3 backup fix (issue 35):** {len(sweeps) - len(old)} of {len(sweeps)} published proto-td3 "
+            f"sweeps ran with the fixed backup (the penalty on the current actor, α‖π(s′) − π̄(s′)‖²). The others "
+            f"(marked proto-td3† below: {', '.join(old)}) ran with the old backup, whose penalty was smoothing noise "
+            "only. They stay until their reruns are published, and `benchmarks/results/proto_td3_before_fix.json` "
+            "keeps all 12 pre-fix numbers.", ""]
+
+
+def label(m: str, per_method: dict) -> str:
+    return f"{m}†" if m == "proto-td3" and pre_fix_td3(per_method) else m
+
+
 def readme_block(page_lines: list[str]) -> str:
     """The README's summary from RESULTS.md's own coverage and claims lines: their bold paragraphs (the coverage and
     each claim's verdict), without headings or tables, so that the README cannot go stale against the page."""
@@ -454,7 +477,7 @@ def render(args: Args) -> tuple[str, str]:
              f"Online budget: {', '.join(f'{b:,}' for b in budgets)} steps per run (the paper: 10⁶), α annealed over "
              "the same fraction of the run; normalized scores use this suite's Brax references "
              "(`proto_brax/envs.py`), so they are not comparable to D4RL numbers.", ""]
-    covered, claimed = coverage(table), claims(table, cost)  # once: the page and the README's block share them
+    covered, claimed = coverage(table) + td3_fix_status(table), claims(table, cost)  # once: the page and README share
     lines += covered
     lines += provenance(table, pinned_builds(args.record))
     lines += claimed

@@ -11,6 +11,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from proto_brax.fidelity import Fidelity
+
 # Standard SAC from scratch (Haarnoja et al. 2018): initial temperature 1, target entropy −|A|.
 SAC_SCRATCH_HP = {"alpha_sac_init": 1.0, "target_entropy_scale": -1.0}
 
@@ -41,6 +43,17 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "the EQL actor's mean action is π₀", bundles=("eql", "sql", "iql", "bc"), proto_axes=True),
     Method("proto-bc", "sac", "PROTO-SAC from a BC actor and its FQE critic (PROTO+BC)", bundles=("bc",),
            requires_bundle=True, proto_axes=True),
+    Method("proto-official", "sac", "PROTO-SAC with every choice of the official code (FIDELITY.md): actor on the "
+           "critics' mean, α·(H − H̄) temperature loss, one random target critic without clipped double-Q, 10k offline "
+           "rows preloaded into the online buffer and updates from the first step; from an EQL bundle",
+           bundles=("eql", "sql", "iql", "bc"), proto_axes=True,
+           defaults={"fidelity": Fidelity.official(), "learning_starts": 1}),
+    Method("proto-td3-official", "td3", "PROTO-TD3 with the official code's choices (FIDELITY.md): Q₂ actor, "
+           "penalty averaged over action dims, β 2.5, exploration σ 0.2 clipped 0.5, the official backup, the "
+           "dataset in the buffer (union sampling), updates from the first step", bundles=("eql", "sql", "iql", "bc"),
+           proto_axes=True, defaults={"fidelity": dataclasses.replace(Fidelity.official(), online_preload=0),
+                                      "learning_starts": 1, "sampling": "union"},
+           hp={"beta": 2.5, "expl_noise": 0.2}),
     Method("frozen", "sac", "PROTO with τ = 0: a fixed regularization towards π₀ (the paper's Frozen)",
            bundles=("eql", "sql", "iql", "bc"), proto_axes=True, defaults={"tau": (0.0,)}),
     Method("direct", "sac", "direct SAC finetuning from the pretrained bundle: PROTO with α₀ = 0",

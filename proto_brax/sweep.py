@@ -22,12 +22,12 @@ from typing import Literal
 
 import numpy as np
 
+from proto_brax.fidelity import Fidelity
 from proto_brax.files import append_once, read_jsonl, strict_json, write_text_atomic
 from proto_brax.methods import METHODS, describe, get_method
 
 GRID_AXES = ("tau", "eta", "alpha0")
-MethodName = Literal["proto-sac", "proto-td3", "proto-bc", "frozen", "direct", "sac-scratch", "td3-scratch",
-                     "sac-offline", "iql", "awac", "pex", "calql", "off2on"]
+MethodName = Literal[tuple(METHODS)]  # the one list of method names is proto_brax.methods.METHODS
 
 
 @dataclasses.dataclass
@@ -72,6 +72,8 @@ class SweepArgs:
     """PROTO penalty in the critic target (paper: off for AntMaze/Adroit)."""
     clipped_double_q: bool = True
     """Min over the critic ensemble in backups (paper: off for AntMaze)."""
+    fidelity: Fidelity = Fidelity()
+    """Switches for the official PROTO code's choices (FIDELITY.md); --algo proto-official turns them all on."""
     sampling: Literal["symmetric", "union", "online"] | None = None
     """Replay mixing; default: symmetric with a dataset, online without."""
     offline_fraction: float = 0.5
@@ -143,7 +145,7 @@ def _finetune_config(args: SweepArgs):
             args.env != "halfcheetah" if args.critic_layer_norm is None else args.critic_layer_norm)),
         steps=args.steps, eval_every=args.eval_every, eval_episodes=args.eval_episodes, batch_size=args.batch_size,
         learning_starts=args.learning_starts, sampling=sampling, offline_fraction=args.offline_fraction,
-        value_reg_backup=args.value_reg_backup, clipped_double_q=args.clipped_double_q,
+        value_reg_backup=args.value_reg_backup, clipped_double_q=args.clipped_double_q, fidelity=args.fidelity,
     )
 
 

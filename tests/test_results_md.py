@@ -317,3 +317,19 @@ def test_ablation_reading_counts_values_whose_final_ci_overlaps_the_defaults():
     assert ("**Reading:** on 2 of 2 (dataset, η) pairs the final IQM's 95% CI overlaps the default's: at these seed "
             "counts no η in the range is told apart from the default") in text
     assert "τ ∈" not in text and "separate:" not in text
+
+
+def test_pre_fix_proto_td3_sweeps_are_named_and_marked():
+    """proto-td3 sweeps without fidelity switches in their config predate issue 35's backup fix: the status line
+    counts and names them, their table rows carry †; a sweep with the switches is neither."""
+    rmd = load_module()
+    old = {"config": {"finetune": {"algo": "td3"}}}
+    new = {"config": {"finetune": {"algo": "td3", "fidelity": {"td3_backup": "paper"}}}}
+    table = {"a-medium": {"proto-td3": old}, "b-medium": {"proto-td3": new}, "c-medium": {"proto-sac": old}}
+    assert rmd.pre_fix_td3(old) and not rmd.pre_fix_td3(new)
+    (status, _), = [rmd.td3_fix_status(table)]
+    assert "1 of 2 published proto-td3 sweeps ran with the fixed backup" in status and "a-medium" in status
+    assert "b-medium" not in status
+    assert rmd.label("proto-td3", old) == "proto-td3†" and rmd.label("proto-td3", new) == "proto-td3"
+    assert rmd.label("proto-sac", old) == "proto-sac"
+    assert rmd.td3_fix_status({"b-medium": {"proto-td3": new}}) == []
