@@ -43,14 +43,14 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "the EQL actor's mean action is π₀", bundles=("eql", "sql", "iql", "bc"), proto_axes=True),
     Method("proto-bc", "sac", "PROTO-SAC from a BC actor and its FQE critic (PROTO+BC)", bundles=("bc",),
            requires_bundle=True, proto_axes=True),
-    Method("proto-official", "sac", "PROTO-SAC with every choice of the official code (FIDELITY.md): actor on the "
-           "critics' mean, α·(H − H̄) temperature loss, one random target critic without clipped double-Q, 10k offline "
-           "rows preloaded into the online buffer and updates from the first step; from an EQL bundle",
+    Method("proto-official-online", "sac", "PROTO-SAC with the official code's online choices (FIDELITY.md): actor "
+           "on the critics' mean, α·(H − H̄) temperature loss, one random target critic without clipped double-Q, 10k "
+           "offline rows preloaded into the online buffer and updates from the first step; from our EQL bundle",
            bundles=("eql", "sql", "iql", "bc"), proto_axes=True,
            defaults={"fidelity": Fidelity.official(), "learning_starts": 1}),
-    Method("proto-td3-official", "td3", "PROTO-TD3 with the official code's choices (FIDELITY.md): Q₂ actor, "
-           "penalty averaged over action dims, β 2.5, exploration σ 0.2 clipped 0.5, the official backup, the "
-           "dataset in the buffer (union sampling), updates from the first step", bundles=("eql", "sql", "iql", "bc"),
+    Method("proto-td3-official-online", "td3", "PROTO-TD3 with the official code's online choices (FIDELITY.md): "
+           "Q₂ actor, penalty averaged over action dims, β 2.5, exploration σ 0.2 clipped 0.5, the official backup, "
+           "the dataset in the buffer (union sampling), updates from the first step", bundles=("eql", "sql", "iql", "bc"),
            proto_axes=True, defaults={"fidelity": dataclasses.replace(Fidelity.official(), online_preload=0),
                                       "learning_starts": 1, "sampling": "union"},
            hp={"beta": 2.5, "expl_noise": 0.2}),
