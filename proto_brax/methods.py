@@ -50,7 +50,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            defaults={"fidelity": Fidelity.official(), "learning_starts": 1}),
     Method("proto-td3-official-online", "td3", "PROTO-TD3 with the official code's online choices (FIDELITY.md): "
            "Q₂ actor, penalty averaged over action dims, β 2.5, exploration σ 0.2 clipped 0.5, the official backup, "
-           "the dataset in the buffer (union sampling), updates from the first step", bundles=("eql", "sql", "iql", "bc"),
+           "the dataset in the buffer (union sampling), updates from the first step",
+           bundles=("eql", "sql", "iql", "bc"),
            proto_axes=True, defaults={"fidelity": dataclasses.replace(Fidelity.official(), online_preload=0),
                                       "learning_starts": 1, "sampling": "union"},
            hp={"beta": 2.5, "expl_noise": 0.2}),

@@ -73,7 +73,8 @@ class SweepArgs:
     clipped_double_q: bool = True
     """Min over the critic ensemble in backups (paper: off for AntMaze)."""
     fidelity: Fidelity = Fidelity()
-    """Switches for the official PROTO code's choices (FIDELITY.md); --algo proto-official-online turns the online ones on."""
+    """Switches for the official PROTO code's choices (FIDELITY.md); --algo proto-official-online turns the online
+    ones on."""
     sampling: Literal["symmetric", "union", "online"] | None = None
     """Replay mixing; default: symmetric with a dataset, online without."""
     offline_fraction: float = 0.5
