@@ -21,6 +21,7 @@ did, against two earlier AVX2 machines that agreed).
     python -m proto_brax.datasets list
     python -m proto_brax.datasets make hopper-medium [--size N] [--seed S]
     python -m proto_brax.datasets info hopper-medium
+    python -m proto_brax.datasets export hopper-medium --minari [--id proto_brax/hopper/medium-v0] [--out DIR]
     python -m proto_brax.datasets references hopper
     python -m proto_brax.datasets measure ant            # behaviour-policy returns of every snapshot (picks medium)
 """
@@ -362,6 +363,8 @@ def load_dataset(name_or_path: str | Path, size: int | None = None, seed: int = 
     if "/" in str(name_or_path):  # a Minari id: NAMESPACE/TASK/KIND-vN
         try:
             return ds.load_minari(str(name_or_path))
+        except (ds.CorruptDatasetError, ds.NonFiniteDatasetError):  # found, but not what it was written as
+            raise
         except Exception as e:  # minari raises its own error types (FileNotFoundError, ValueError, …) across versions
             root = os.environ.get(ds._MINARI_ENV, str(Path.home() / ".minari" / "datasets"))
             raise FileNotFoundError(
@@ -389,6 +392,26 @@ class Make:
     """Default: $PROTO_BRAX_DATASETS or ~/.cache/proto_brax/datasets."""
     force: bool = False
     """Rebuild even if cached."""
+
+
+@dataclasses.dataclass
+class Export:
+    """Write a dataset as a local Minari dataset with minari's own writer (``proto_brax.data.minari_io``): episodes,
+    reference scores, the content hash and the generation metadata, readable back bit-for-bit (``--dataset ID``)."""
+
+    name: tyro.conf.Positional[str]
+    """A registered dataset (built into the cache first if missing) or a dataset file (.npz, D4RL .hdf5)."""
+    minari: bool = False
+    """Export to the Minari format (the one export format; required)."""
+    id: str | None = None
+    """Minari dataset id, [NAMESPACE/]NAME-vVERSION (default: proto_brax/ENV/KIND-v0 for a registered dataset)."""
+    out: Path | None = None
+    """Minari datasets root to write under (default: $MINARI_DATASETS_PATH or ~/.minari/datasets)."""
+    size: int | None = None
+    seed: int = 0
+    cache_dir: Path | None = None
+    force: bool = False
+    """Replace an existing dataset of that id, only if this command wrote it."""
 
 
 @dataclasses.dataclass
@@ -497,6 +520,59 @@ def cmd_make(a: Make) -> Path:
     return path
 
 
+_CACHE_FILE_RE = r"(.+?)(?:-n(\d+)-seed(\d+))?\.npz"  # NAME.npz or NAME-nSIZE-seedS.npz (dataset_path)
+
+
+def cmd_export(a: Export) -> Path:
+    """``export NAME --minari``: the written dataset is read back with the suite's reader and must give the same
+    content hash (else the export is removed and an error raised)."""
+    import re
+
+    from proto_brax.data import minari_io
+    from proto_brax.data.dataset import CorruptDatasetError, content_hash, load_minari
+    from proto_brax.data.generate import dataset_names
+
+    if not a.minari:
+        raise ValueError("export writes the Minari format only: pass --minari.")
+    if a.id is not None:
+        minari_io.check_id(a.id)  # before anything is built or read
+    if a.name in dataset_names():
+        if not dataset_path(a.name, a.size, a.seed, a.cache_dir).exists():
+            print(f"{a.name} is not cached: building it first", flush=True)
+            cmd_make(Make(a.name, size=a.size, seed=a.seed, cache_dir=a.cache_dir))
+        data, meta = load_dataset(a.name, a.size, a.seed, a.cache_dir)
+        dataset_id = a.id or minari_io.default_id(a.name, a.size, a.seed)
+    else:
+        data, meta = load_dataset(a.name)  # a file (or an error naming the problem)
+        m = re.fullmatch(_CACHE_FILE_RE, Path(a.name).name)
+        if a.id is None and (m is None or m.group(1) not in dataset_names()):
+            raise ValueError(f"{a.name} is not a registered dataset's cache file: pass --id NAMESPACE/NAME-v0 "
+                             "(a Minari dataset id) to export it.")
+        dataset_id = a.id or minari_io.default_id(m.group(1), int(m.group(2)) if m.group(2) else None,
+                                                   int(m.group(3) or 0))
+    command = " ".join(["python -m proto_brax.datasets export", a.name, "--minari", "--id", dataset_id,
+                        *(["--size", str(a.size)] if a.size else []), *(["--seed", str(a.seed)] if a.seed else []),
+                        *(["--cache-dir", str(a.cache_dir)] if a.cache_dir else []),
+                        *(["--out", str(a.out)] if a.out else []), "--force"])
+    expected = content_hash(data)
+    path = minari_io.export_minari(data, meta, dataset_id, root=a.out, force=a.force, source=a.name,
+                                   command=command)
+    try:
+        back, bmeta = load_minari(path)
+    except Exception:
+        minari_io.remove_export(path)
+        raise
+    if content_hash(back) != expected:  # load_minari checks against the recorded hash; this checks the source too
+        minari_io.remove_export(path)
+        raise CorruptDatasetError(f"the Minari export of {a.name} read back with content hash {content_hash(back)}, "
+                                  f"not {expected}: removed it.")
+    root = path.parents[len(Path(dataset_id).parts) - 1]
+    print(f"{a.name}: {bmeta['total_steps']} transitions, {bmeta['total_episodes']} episodes -> Minari dataset "
+          f"{dataset_id} at {path}; read back bit-for-bit (content hash {expected}). Load it with --dataset {path}, "
+          f"or --dataset {dataset_id} with MINARI_DATASETS_PATH={root}.")
+    return path
+
+
 def cmd_info(a: Info) -> dict:
     from proto_brax import envs
     from proto_brax.data.generate import dataset_names
@@ -569,16 +645,19 @@ def main(argv: list[str] | None = None) -> None:
     from proto_brax.data.generate import dataset_names, parse_name
 
     cmd = tyro.extras.subcommand_cli_from_dict(
-        {"make": Make, "info": Info, "list": List, "references": References, "measure": Measure}, args=argv
+        {"make": Make, "export": Export, "info": Info, "list": List, "references": References, "measure": Measure},
+        args=argv,
     )
-    if isinstance(cmd, Make) and cmd.name in dataset_names():  # before JAX starts: the pinned generation numerics
+    # Before JAX starts: the pinned generation numerics (export builds a registered dataset that is not cached).
+    if isinstance(cmd, (Make, Export)) and cmd.name in dataset_names():
         from proto_brax import envs
 
         mjx = envs.get_spec(parse_name(cmd.name)[0]).default_backend == "mjx"  # AntMaze, Adroit
         os.environ["XLA_FLAGS"] = generation_xla_flags(mjx=mjx)
     from proto_brax.sweep import exit_on_input_error
 
-    run = {Make: cmd_make, Info: cmd_info, List: cmd_list, References: cmd_references, Measure: cmd_measure}[type(cmd)]
+    run = {Make: cmd_make, Export: cmd_export, Info: cmd_info, List: cmd_list, References: cmd_references,
+           Measure: cmd_measure}[type(cmd)]
     exit_on_input_error(lambda: run(cmd), argv)
 
 

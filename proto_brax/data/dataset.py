@@ -5,7 +5,8 @@ Formats read and written here:
 * our own ``.npz`` (:func:`save_npz` / :func:`load_npz`): the six arrays of :class:`Transition` as float32, plus a
   JSON metadata entry carrying a ``format_version`` and a ``content_hash`` that is checked on every load;
 * D4RL-format HDF5 (:func:`load_d4rl_hdf5`), read-only;
-* local Minari datasets (:func:`load_minari`), read-only, through minari's own reader.
+* local Minari datasets (:func:`load_minari`) through minari's own reader (written by
+  :mod:`proto_brax.data.minari_io`, minari's own writer).
 
 Every loader returns ``(dataset, metadata)`` with the arrays as host ``numpy`` arrays (float32; ``rewards``,
 ``terminals`` and ``timeouts`` of shape ``[N]``, the others ``[N, d]``); put them on device once with
@@ -351,6 +352,7 @@ def load_d4rl_hdf5(path: PathLike) -> tuple[OfflineDataset, dict[str, Any]]:
 
 _MINARI_ENV = "MINARI_DATASETS_PATH"
 _GOAL_KEYS = ("observation", "desired_goal")
+_MINARI_EXPORT_KEY = "proto_brax"  # our block in the metadata.json of an exported dataset (minari_io.METADATA_KEY)
 
 
 @contextlib.contextmanager
@@ -422,8 +424,12 @@ def load_minari(dataset_id_or_path: PathLike) -> tuple[OfflineDataset, dict[str,
     ``truncations`` → ``timeouts``. Goal-conditioned dict observations (AntMaze: ``observation`` / ``achieved_goal``
     / ``desired_goal``) are flattened to ``concat(observation, desired_goal)``; image-like observations are flattened
     per step. Metadata: ``source: "minari"``, ``dataset_id``, ``path`` (the data directory), ``minari_version``,
-    ``total_episodes``, ``total_steps``, ``env_id`` and the reference scores when recorded, and
-    ``observation_layout`` when dict observations were flattened.
+    ``total_episodes``, ``total_steps``, ``env_id``, ``content_hash`` (:func:`content_hash` of the rows read) and the
+    reference scores when recorded, and ``observation_layout`` when dict observations were flattened.
+
+    A dataset exported by :mod:`proto_brax.data.minari_io` reads back to exactly the rows it was written from: its
+    recorded content hash is checked (:class:`CorruptDatasetError` on a mismatch), and its ``proto_brax`` block
+    (the generation metadata) and suite ``env`` join the metadata.
     """
     import minari
 
@@ -459,20 +465,32 @@ def load_minari(dataset_id_or_path: PathLike) -> tuple[OfflineDataset, dict[str,
 
     raw = ds.storage.metadata
     env_spec = ds.env_spec
+    data_path = os.path.abspath(str(ds.spec.data_path))
     metadata: dict[str, Any] = {
         "source": "minari",
         "dataset_id": ds.id,
-        "path": os.path.abspath(str(ds.spec.data_path)),
+        "path": data_path,
         "minari_version": ds.minari_version,
         "total_episodes": int(ds.total_episodes),
         "total_steps": int(ds.total_steps),
         "env_id": env_spec.id if env_spec is not None else None,
+        "content_hash": _hash_arrays(arrays),
     }
     for key in ("ref_min_score", "ref_max_score", "algorithm_name"):
         if raw.get(key) is not None:
             metadata[key] = _jsonable(raw[key])
     if dict_obs:
         metadata["observation_layout"] = "concat(observation, desired_goal)"
+    exported = raw.get(_MINARI_EXPORT_KEY)
+    if isinstance(exported, dict):  # written by `python -m proto_brax.datasets export` (proto_brax.data.minari_io)
+        stored = exported.get("content_hash")
+        if stored != metadata["content_hash"]:
+            raise CorruptDatasetError(
+                f"Minari dataset {dataset_id!r} ({data_path}) reads back with content hash {metadata['content_hash']}, "
+                f"but it was exported with {stored}: it was modified or truncated; export it again with "
+                f"{exported.get('export_command') or 'python -m proto_brax.datasets export NAME --minari --force'}")
+        metadata["env"] = exported.get("env")  # the suite env (a Brax env: there is no Gymnasium env_spec)
+        metadata[_MINARI_EXPORT_KEY] = exported
     return _from_arrays(arrays), metadata
 
 
