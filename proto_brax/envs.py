@@ -151,6 +151,14 @@ REGISTRY: dict[str, EnvSpec] = {
                     reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25),
     "hammer": EnvSpec("hammer", "mjx", episode_length=200, ref_random=-274.856578, ref_expert=12794.1340,
                       reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25),
+    # Gymnasium's MuJoCo v5 locomotion on MJX (proto_brax/gym_v5.py; the dynamics of Minari's mujoco/* data),
+    # gymnasium's 1000-step limits. References: D4RL's (d4rl/infos.py REF_MIN_SCORE / REF_MAX_SCORE, random / expert,
+    # measured on the v2 envs: mujoco-py, Hopper-v3 etc.), so scores sit beside published D4RL ones; v5 differs
+    # from v2 in small ways (e.g. walker2d's left-foot friction, ant's contact cost and 105-dim observation).
+    "hopper-v5": EnvSpec("hopper-v5", "mjx", ref_random=-20.272305, ref_expert=3234.3),
+    "walker2d-v5": EnvSpec("walker2d-v5", "mjx", ref_random=1.629008, ref_expert=4592.3),
+    "halfcheetah-v5": EnvSpec("halfcheetah-v5", "mjx", ref_random=-280.178953, ref_expert=12135.0),
+    "ant-v5": EnvSpec("ant-v5", "mjx", ref_random=-325.6, ref_expert=3879.7),
 }
 
 
@@ -184,6 +192,10 @@ def make_env(name: str, backend: str | None = None) -> Env:
         from proto_brax.adroit import Adroit  # imported lazily: brax's import is slow
 
         return Adroit(name, backend=backend, **dict(spec.kwargs))
+    if name.endswith("-v5"):
+        from proto_brax.gym_v5 import GymV5  # imported lazily: brax's import is slow
+
+        return GymV5(name.removesuffix("-v5"), backend=backend, **dict(spec.kwargs))
     from brax import envs as brax_envs  # imported lazily: brax's import is slow
 
     return brax_envs.get_environment(name, backend=backend, **dict(spec.kwargs))
