@@ -383,6 +383,7 @@ def test_minari_by_id(tmp_path, monkeypatch):
     assert meta["source"] == "minari" and meta["dataset_id"] == "toy/walk-v0"
     assert meta["total_episodes"] == 3 and meta["total_steps"] == 9
     assert meta["algorithm_name"] == "scripted"
+    assert meta["content_hash"] == content_hash(ds) and "proto_brax" not in meta  # not one of our exports
     validate_for_env(ds, 2, 1, "toy/walk-v0")
 
 
