@@ -164,7 +164,7 @@ def test_a_modified_export_is_refused_naming_the_export_command(point_medium, tm
         datasets.load_dataset("proto_brax/point/medium-v0")
 
 
-@pytest.mark.parametrize("bad", ["hopper medium", "proto_brax/hopper/medium", "../escape-v0", "a//b-v0", ""])
+@pytest.mark.parametrize("bad", ["hopper medium", "proto_brax/hopper/medium", "../escape-v0", "a//b-v0", "a/b-v0", ""])
 def test_a_bad_id_is_one_line_naming_the_fix(bad):
     with pytest.raises(ValueError, match="pass another --id") as e:
         minari_io.check_id(bad)

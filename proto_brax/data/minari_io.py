@@ -70,8 +70,18 @@ def default_id(name: str, size: int | None = None, seed: int = 0) -> str:
 
 def check_id(dataset_id: str) -> str:
     """``dataset_id`` when it is a Minari id this exporter writes (versioned, no path tricks), else ValueError."""
+    bad = ValueError(f"{dataset_id!r} is not a Minari dataset id: ids read {ID_FORMAT}; pass another --id.")
     if not _ID_RE.fullmatch(dataset_id):
-        raise ValueError(f"{dataset_id!r} is not a Minari dataset id: ids read {ID_FORMAT}; pass another --id.")
+        raise bad
+    from minari.dataset.minari_dataset import parse_dataset_id
+    from minari.namespace import validate_namespace
+
+    try:  # and minari's own rules (e.g. a namespace of two characters or more)
+        namespace = parse_dataset_id(dataset_id)[0]
+        if namespace is not None:
+            validate_namespace(namespace)
+    except ValueError:
+        raise bad from None
     return dataset_id
 
 
