@@ -14,7 +14,8 @@ Per task:
    error, 95% CI, and whether the difference of means lies within its 95% CI (Welch's z). D4RL's random reference
    (measured with the same policy on the v2 envs) is printed beside.
 3. **Speed**: env steps/s after compile of a jitted ``lax.scan`` of ``speed_steps`` random-action steps at batch 1 and
-   at ``batch`` (vmapped; all envs together), for ours and for Brax's own env at the suite's default backend
+   at ``batch`` (vmapped; all envs together; ours at batch ``episodes``: the timed return rollout of 2., every env
+   scanning all 1000 steps), for ours and for Brax's own env at the suite's default backend
    (``proto_brax.envs.REGISTRY``), and native gymnasium (one env, Python loop). Finetuning is update-bound here: the
    JSON sets the batch-1 step time beside one SAC update (FACTS.md: ~195 updates/s on this CPU, ~5.1 ms).
 
@@ -50,7 +51,7 @@ class Args:
     episodes: int = 64
     """Episodes of the random policy per implementation (ours: one vmapped batch)."""
     batch: int = 64
-    """Batch of the second speed measurement (vmapped envs)."""
+    """Batch of Brax's second speed measurement (ours: the ``episodes`` batch of the return rollout)."""
     speed_steps: int = 200
     """Steps of each timed scan."""
     brax: bool = True
@@ -212,9 +213,10 @@ def main(args: Args) -> None:
             "d4rl_random_ref_v2": spec.ref_random}
         print(task, "random policy", json.dumps(row["random_policy"]), flush=True)
 
-        speed = {"ours_b1": scan_speed(env, 1, args.speed_steps, key)}
-        if args.batch > 1:
-            speed["ours_batch"] = scan_speed(env, args.batch, args.speed_steps, key)
+        # Ours at batch ``episodes``: the return rollout above (every env runs all 1000 scanned steps, ended or not).
+        speed = {"ours_b1": scan_speed(env, 1, args.speed_steps, key),
+                 "ours_batch": {"batch": args.episodes, "steps": 1000, "compile_s": compile_s,
+                                "steps_per_s": args.episodes * 1000 / run_s}}
         if args.brax:
             brax_env = envs.make_env(task)
             backend = envs.get_spec(task).default_backend
