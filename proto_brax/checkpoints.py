@@ -277,8 +277,10 @@ def rebuild_command(path: str | os.PathLike, meta: dict[str, Any]) -> str:
                      if k in default and not np.isclose(v, default[k], rtol=1e-6))
     except Exception:  # (a message helper: never fail because of it)
         pass
+    policy = (meta.get("net") or {}).get("policy", "tanh_gaussian")
+    policy = "" if policy == "tanh_gaussian" else f" --policy {policy}"
     return (f"python -m proto_brax.pretrain --dataset {meta.get('dataset', 'DATASET')} --algo {meta.get('algo')} "
-            f"--seeds {seeds} --steps {meta.get('steps')} --hidden {hidden}{hp} --out {path} --overwrite")
+            f"--seeds {seeds} --steps {meta.get('steps')} --hidden {hidden}{policy}{hp} --out {path} --overwrite")
 
 
 def bundle_template(meta: dict[str, Any]):
@@ -360,6 +362,9 @@ def validate_bundle(meta: dict[str, Any], env: str, obs_size: int, act_size: int
     for k in ("critic_layer_norm", "actor_layer_norm", "num_qs"):
         if bnet[k] != getattr(net, k):
             problems.append(f"{k} {bnet[k]} (finetune: {getattr(net, k)})")
+    if bnet.get("policy", "tanh_gaussian") != net.policy:  # bundles made before the switch hold tanh-Gaussians
+        problems.append(f"policy {bnet.get('policy', 'tanh_gaussian')} (finetune: {net.policy}; pass --policy "
+                        f"{bnet.get('policy', 'tanh_gaussian')})")
     if problems:
         raise CheckpointError("The checkpoint does not match the finetuning configuration: " + "; ".join(problems))
 

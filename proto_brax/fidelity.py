@@ -39,6 +39,11 @@ class Fidelity:
     """Evaluation actions: the deterministic mean action, or the behaviour policy's (SAC: a sample; TD3: π(s) plus
     clipped exploration noise). The official code evaluates AntMaze with the behaviour policy, MuJoCo and Adroit
     deterministically, so ``official()`` leaves this to the AntMaze preset."""
+    carry_critic_state: bool = False
+    """Start finetuning with the pretrained critic's Adam state and its Polyak target critic (official code: one
+    critic Model is trained offline and online); else a fresh Adam and target = the pretrained critic. The actor's
+    Adam and the temperature start fresh either way, as in the official code. Needs the bundle's optimizer state
+    (every bundle saved by ``python -m proto_brax.pretrain`` has it)."""
     online_preload: int = 0
     """Offline rows (drawn at random) copied into the online buffer at the start; the official code preloads 10,000
     (hard-coded) and then updates from the first env step, so its batches' offline share starts near 1 and decays as
@@ -47,4 +52,5 @@ class Fidelity:
     @classmethod
     def official(cls) -> "Fidelity":
         return cls(actor_q="mean", temperature_loss="alpha", unclipped_target="random", td3_backup="official",
-                   td3_actor_critic=1, td3_penalty="mean", online_preload=10_000, td3_expl_noise_clip=0.5)
+                   td3_actor_critic=1, td3_penalty="mean", online_preload=10_000, td3_expl_noise_clip=0.5,
+                   carry_critic_state=True)

@@ -24,6 +24,7 @@ class Method:
     summary: str
     bundles: tuple[str, ...] = ()  # pretraining algos it may start from, the first is 'auto'; () = random init only
     requires_bundle: bool = False  # no bundle found for 'auto' -> an error naming the fix (else a random π₀)
+    bundle_suffix: str = ""  # 'auto' looks in checkpoints/pretrained/DATASET/KIND+SUFFIX (a variant's own bundles)
     proto_axes: bool = False  # τ, η, α₀ act on it (PROTO variants); other methods take one value of each
     regularizer: bool = True  # False skips π̄ work entirely (plain SAC/TD3: the cost of the unregularized update)
     defaults: dict[str, Any] = dataclasses.field(default_factory=dict)  # SweepArgs fields
@@ -43,6 +44,13 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "the EQL actor's mean action is π₀", bundles=("eql", "sql", "iql", "bc"), proto_axes=True),
     Method("proto-bc", "sac", "PROTO-SAC from a BC actor and its FQE critic (PROTO+BC)", bundles=("bc",),
            requires_bundle=True, proto_axes=True),
+    Method("proto-official", "sac", "PROTO-SAC as the official code runs it (FIDELITY.md): its policy class (Gaussian "
+           "with mean tanh(m(s)) and a state-independent std), its EQL pretraining (extraction weight exp((Q − V)/α), "
+           "z clip 7), the critic's Adam state and target carried over, and every online choice of "
+           "proto-official-online; from an eql-official bundle", bundles=("eql",), bundle_suffix="-official",
+           requires_bundle=True, proto_axes=True,
+           defaults={"fidelity": Fidelity.official(), "learning_starts": 1, "policy": "gaussian",
+                     "pretrain_hp": {"eql_weight_scale": 1.0, "eql_z_clip": 7.0}}),
     Method("proto-official-online", "sac", "PROTO-SAC with the official code's online choices (FIDELITY.md): actor "
            "on the critics' mean, α·(H − H̄) temperature loss, one random target critic without clipped double-Q, 10k "
            "offline rows preloaded into the online buffer and updates from the first step; from our EQL bundle",

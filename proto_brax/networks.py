@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
+from typing import Literal, Sequence
 
 import flax.linen as nn
 import jax
@@ -62,6 +62,37 @@ class DeterministicActor(nn.Module):
         return jnp.tanh(out[..., : self.action_size])
 
 
+class GaussianMeanTanhActor(nn.Module):
+    """The official PROTO code's policy (jaxrl's ``NormalTanhPolicy`` with ``tanh_squash_distribution=False`` and
+    ``state_dependent_std=False``): a Gaussian over the action itself, mean tanh(m(s)) and a state-independent log-std
+    (a free parameter, initialized at 0) hard-clipped to [LOG_STD_MIN, LOG_STD_MAX]. Returns (mean, log_std) of that
+    Gaussian (already tanh-ed mean: samples are not squashed; ``GaussianPolicy`` clips them only for the env)."""
+
+    action_size: int
+    hidden: Sequence[int]
+    layer_norm: bool = False
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        mean = jnp.tanh(MLP(self.hidden, self.action_size, self.layer_norm)(obs))
+        log_std = jnp.clip(self.param("log_stds", nn.initializers.zeros, (self.action_size,)), LOG_STD_MIN,
+                           LOG_STD_MAX)
+        return mean, jnp.broadcast_to(log_std, mean.shape)
+
+
+class DeterministicGaussianMeanTanhActor(nn.Module):
+    """π(s) = tanh(m(s)) with exactly the parameters of ``GaussianMeanTanhActor`` (its log-std is unused)."""
+
+    action_size: int
+    hidden: Sequence[int]
+    layer_norm: bool = False
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        self.param("log_stds", nn.initializers.zeros, (self.action_size,))
+        return jnp.tanh(MLP(self.hidden, self.action_size, self.layer_norm)(obs))
+
+
 class Critic(nn.Module):
     hidden: Sequence[int]
     layer_norm: bool = False
@@ -101,7 +132,7 @@ class ValueNet(nn.Module):
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# tanh-Gaussian distribution helpers (pure functions on (mean, log_std))
+# Policy distributions: pure functions on the actor's (mean, log_std)
 
 
 def gaussian_log_prob(u: jax.Array, mean: jax.Array, log_std: jax.Array) -> jax.Array:
@@ -127,6 +158,49 @@ def tanh_gaussian_log_prob(action: jax.Array, mean: jax.Array, log_std: jax.Arra
     return gaussian_log_prob(u, mean, log_std) - tanh_log_det(u)
 
 
+@dataclasses.dataclass(frozen=True)
+class TanhGaussianPolicy:
+    """a = tanh(u), u ~ N(mean, std): this suite's default. ``sample`` returns (action, u, log π(action)); the PROTO KL
+    (``regularizer.kl_penalty``) compares the two Gaussians at u, where the tanh Jacobians cancel."""
+
+    def sample(self, key, mean, log_std):
+        return sample_tanh_gaussian(key, mean, log_std)
+
+    def mode(self, mean):
+        return jnp.tanh(mean)
+
+    def log_prob(self, action, mean, log_std):
+        return tanh_gaussian_log_prob(action, mean, log_std)
+
+    def to_env(self, action):
+        return action  # already inside (−1, 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class GaussianPolicy:
+    """a ~ N(mean, std) with mean = tanh(m(s)) (``GaussianMeanTanhActor``, the official PROTO code's policy). Samples
+    stay unsquashed in every loss (the critic sees actions outside [−1, 1]); log-probs are Gaussian densities of the
+    sample, so ``sample``'s u is the action itself and the PROTO KL is log N(a; μ, σ) − log N(a; μ̄, σ̄). Only the
+    env's action is clipped to [−1, 1]; dataset actions are clipped to ±(1 − 1e-5) for the likelihood, as the
+    official code clips them at load."""
+
+    def sample(self, key, mean, log_std):
+        a = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
+        return a, a, gaussian_log_prob(a, mean, log_std)
+
+    def mode(self, mean):
+        return mean
+
+    def log_prob(self, action, mean, log_std):
+        return gaussian_log_prob(jnp.clip(action, -1.0 + 1e-5, 1.0 - 1e-5), mean, log_std)
+
+    def to_env(self, action):
+        return jnp.clip(action, -1.0, 1.0)
+
+
+POLICIES = {"tanh_gaussian": TanhGaussianPolicy(), "gaussian": GaussianPolicy()}
+
+
 # ---------------------------------------------------------------------------------------------------------------
 
 
@@ -138,6 +212,13 @@ class NetworkConfig:
     critic_layer_norm: bool = True
     actor_layer_norm: bool = False
     num_qs: int = 2
+    policy: Literal["tanh_gaussian", "gaussian"] = "tanh_gaussian"
+    """The actor's distribution: a tanh-squashed Gaussian with state-dependent std (ours), or the official PROTO
+    code's Gaussian with mean tanh(m(s)) and a state-independent std (FIDELITY.md row 6)."""
+
+    def __post_init__(self):
+        if self.policy not in POLICIES:
+            raise ValueError(f"Unknown policy {self.policy!r}: choose one of {list(POLICIES)}.")
 
 
 class DensityRatioNet(nn.Module):
@@ -159,11 +240,17 @@ class Networks:
     critic: CriticEnsemble
     value: ValueNet
     density: DensityRatioNet
+    policy: TanhGaussianPolicy | GaussianPolicy = TanhGaussianPolicy()  # the actor's distribution functions
+
+
+ACTORS = {("tanh_gaussian", False): GaussianActor, ("tanh_gaussian", True): DeterministicActor,
+          ("gaussian", False): GaussianMeanTanhActor, ("gaussian", True): DeterministicGaussianMeanTanhActor}
 
 
 def make_networks(cfg: NetworkConfig, action_size: int, deterministic: bool = False) -> Networks:
-    actor_cls = DeterministicActor if deterministic else GaussianActor
+    actor_cls = ACTORS[cfg.policy, deterministic]
     return Networks(
+        policy=POLICIES[cfg.policy],
         actor=actor_cls(action_size, cfg.hidden, cfg.actor_layer_norm),
         critic=CriticEnsemble(cfg.hidden, cfg.num_qs, cfg.critic_layer_norm),
         value=ValueNet(cfg.hidden, cfg.critic_layer_norm),

@@ -38,6 +38,9 @@ class PretrainArgs:
     hidden: tuple[int, ...] = (256, 256)
     critic_layer_norm: bool | None = None
     """LayerNorm in Q and V; default: on, except halfcheetah (paper)."""
+    policy: Literal["tanh_gaussian", "gaussian"] = "tanh_gaussian"
+    """The actor's distribution: tanh-squashed Gaussian (ours) or the official PROTO code's Gaussian with mean
+    tanh(m(s)) and a state-independent std (FIDELITY.md)."""
     eval_episodes: int = 10
     reward_scale: float | None = None
     """Training rewards are reward_scale · r + reward_shift (evaluation reports raw returns). Default: the env's rule,
@@ -105,7 +108,8 @@ def pretrain(args: PretrainArgs) -> dict:
     if args.algo == "calql":
         data = with_returns_to_go(data, float(hp.gamma))
     ln = default_layer_norm(env) if args.critic_layer_norm is None else args.critic_layer_norm
-    cfg = PretrainConfig(algo=args.algo, env=env, net=NetworkConfig(hidden=tuple(args.hidden), critic_layer_norm=ln),
+    cfg = PretrainConfig(algo=args.algo, env=env, net=NetworkConfig(hidden=tuple(args.hidden), critic_layer_norm=ln,
+                                                                 policy=args.policy),
                          steps=args.steps, log_every=args.log_every, batch_size=args.batch_size,
                          eval_episodes=args.eval_episodes)
     pre = make_pretrain(cfg)

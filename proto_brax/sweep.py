@@ -68,6 +68,9 @@ class SweepArgs:
     """Hidden layer sizes of actor and critics."""
     critic_layer_norm: bool | None = None
     """LayerNorm in the critics; default: on, except halfcheetah (paper)."""
+    policy: Literal["tanh_gaussian", "gaussian"] = "tanh_gaussian"
+    """The actor's distribution: tanh-squashed Gaussian (ours) or the official PROTO code's Gaussian with mean
+    tanh(m(s)) and a state-independent std (FIDELITY.md); it must match the bundle's."""
     value_reg_backup: bool = True
     """PROTO penalty in the critic target (paper: off for AntMaze/Adroit)."""
     clipped_double_q: bool = True
@@ -143,7 +146,8 @@ def _finetune_config(args: SweepArgs):
     return FinetuneConfig(
         env=args.env, backend=args.backend, algo=method.algo, regularizer=method.regularizer,
         net=NetworkConfig(hidden=tuple(args.hidden), critic_layer_norm=(
-            args.env != "halfcheetah" if args.critic_layer_norm is None else args.critic_layer_norm)),
+            args.env != "halfcheetah" if args.critic_layer_norm is None else args.critic_layer_norm),
+            policy=args.policy),
         steps=args.steps, eval_every=args.eval_every, eval_episodes=args.eval_episodes, batch_size=args.batch_size,
         learning_starts=args.learning_starts, sampling=sampling, offline_fraction=args.offline_fraction,
         value_reg_backup=args.value_reg_backup, clipped_double_q=args.clipped_double_q, fidelity=args.fidelity,
@@ -236,13 +240,15 @@ def resolve_checkpoint(args: SweepArgs) -> Path | None:
                 raise ValueError(f"--algo {args.algo} starts from a {kind} bundle: pass --checkpoint PATH, or a "
                                  f"registered --dataset with a committed bundle.")
             return None
-        auto = REPO_ROOT / "checkpoints" / "pretrained" / dataset / kind
+        auto = REPO_ROOT / "checkpoints" / "pretrained" / dataset / (kind + method.bundle_suffix)
         if (auto / "metadata.json").exists():
             return auto
         if args.pretrain is None:  # (with --pretrain the sweep makes its own bundle)
             rel = auto.relative_to(REPO_ROOT)
-            fix = (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind} --out {rel}, or add --pretrain "
-                   f"{kind}, or pass --checkpoint PATH")
+            extra = "".join([f" --policy {args.policy}" if args.policy != "tanh_gaussian" else ""]
+                            + [f" --hp {k} {v:g}" for k, v in sorted(args.pretrain_hp.items())])
+            fix = (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}{extra} --out {rel}, or add "
+                   f"--pretrain {kind}, or pass --checkpoint PATH")
             if method.requires_bundle:
                 raise FileNotFoundError(f"--algo {args.algo}: no committed {kind} bundle for {dataset}. Make one: "
                                         f"{fix}.")
@@ -292,7 +298,10 @@ def _load_checkpoint(path: Path | None, cfg, grid, method_name: str = "proto-sac
     if ALGORITHMS[cfg.algo].value and value is None:
         raise ValueError(f"--algo {method_name} needs a bundle with a value network (IQL); {path} has none.")
     log_alpha = state.log_alpha_sac if ALGORITHMS[cfg.algo].temperature else None  # only CQL bundles hold one
-    pre = Pretrained(actor=state.actor, critic=state.critic, value=value, log_alpha_sac=log_alpha)
+    carry = cfg.fidelity.carry_critic_state  # the critic's Adam state and target critic (FIDELITY.md row 5)
+    pre = Pretrained(actor=state.actor, critic=state.critic, value=value, log_alpha_sac=log_alpha,
+                     critic_target=state.critic_target if carry else None,
+                     critic_opt=state.critic_opt if carry else None)
     seeds = list(meta["seeds"])
     if cfg.algo == "off2on":  # the bundle's seeds are one ensemble, shared by every run
         if len(seeds) != cfg.ensemble_size:
@@ -629,6 +638,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
                                   env=args.env, seeds=seeds,
                                   steps=args.pretrain_steps, log_every=min(10_000, args.pretrain_steps),
                                   hidden=tuple(args.hidden), critic_layer_norm=cfg.net.critic_layer_norm,
+                                  policy=cfg.net.policy,
                                   reward_scale=args.reward_scale, reward_shift=args.reward_shift,
                                   hp=dict(args.pretrain_hp),
                                   out=bundle, overwrite=True))

@@ -33,6 +33,13 @@ def gaussian_actor(params, obs, log_std_min=-5.0, log_std_max=2.0):
     return mean, log_std
 
 
+def gaussian_mean_tanh_actor(params, obs, log_std_min=-5.0, log_std_max=2.0):
+    """The official PROTO code's policy: N(tanh(m(s)), exp(clip(log_stds))) with a state-independent log-std."""
+    p = _np(params)["params"]
+    mean = np.tanh(mlp(p["MLP_0"], obs, False))
+    return mean, np.broadcast_to(np.clip(p["log_stds"], log_std_min, log_std_max), mean.shape)
+
+
 def det_actor(params, obs):
     """PROTO-TD3's actor: tanh of the Gaussian actor's mean (same parameters)."""
     return np.tanh(gaussian_actor(params, obs)[0])
@@ -56,33 +63,43 @@ def tanh_gaussian_logp(u, mean, log_std):
 
 
 def sac_critic_loss(actor, critic, critic_target, pibar, log_alpha_sac, batch, eps, alpha, gamma, backup, clip,
-                    member=None):
-    """PROTO-SAC's critic loss (Eq. 3); ``member``: without clipping, the one target critic used (official code)."""
+                    member=None, gaussian=False):
+    """PROTO-SAC's critic loss (Eq. 3); ``member``: without clipping, the one target critic used (official code);
+    ``gaussian``: the official code's policy (an unsquashed Gaussian sample and its Gaussian log-density)."""
     s, a, r, s2, d = (np.asarray(getattr(batch, f), np.float64) for f in
                       ("observations", "actions", "rewards", "next_observations", "terminals"))
-    mean, log_std = gaussian_actor(actor, s2)
+    actor_fn, logp_fn, squash = _policy(gaussian)
+    mean, log_std = actor_fn(actor, s2)
     u = mean + np.exp(log_std) * eps
-    logp = tanh_gaussian_logp(u, mean, log_std)
-    q_next = critics(critic_target, s2, np.tanh(u))
+    logp = logp_fn(u, mean, log_std)
+    q_next = critics(critic_target, s2, squash(u))
     q_next = q_next.min(0) if clip else (q_next.mean(0) if member is None else q_next[member])
     v = q_next - np.exp(log_alpha_sac) * logp if backup else q_next  # no backup: no entropy term either
     if backup:
-        mb, lb = gaussian_actor(pibar, s2)
-        v = v - alpha * (logp - tanh_gaussian_logp(u, mb, lb))
+        mb, lb = actor_fn(pibar, s2)
+        v = v - alpha * (logp - logp_fn(u, mb, lb))
     y = r + gamma * (1 - d) * v
     q = critics(critic, s, a)
     return np.mean((q - y[None]) ** 2)
 
 
-def sac_actor_loss(actor, critic, pibar, log_alpha_sac, obs, eps, alpha, clip, mean_q=False):
+def _policy(gaussian: bool):
+    """(actor, log-density of the sampled u, u -> critic's action) of the tanh-Gaussian or the official Gaussian."""
+    if gaussian:
+        return gaussian_mean_tanh_actor, normal_logpdf, lambda u: u
+    return gaussian_actor, tanh_gaussian_logp, np.tanh
+
+
+def sac_actor_loss(actor, critic, pibar, log_alpha_sac, obs, eps, alpha, clip, mean_q=False, gaussian=False):
     """PROTO-SAC's actor loss (Eq. 4); ``mean_q``: the ensemble mean always (official code)."""
     s = np.asarray(obs, np.float64)
-    mean, log_std = gaussian_actor(actor, s)
+    actor_fn, logp_fn, squash = _policy(gaussian)
+    mean, log_std = actor_fn(actor, s)
     u = mean + np.exp(log_std) * eps
-    logp = tanh_gaussian_logp(u, mean, log_std)
-    mb, lb = gaussian_actor(pibar, s)
-    kl = logp - tanh_gaussian_logp(u, mb, lb)
-    q = critics(critic, s, np.tanh(u))
+    logp = logp_fn(u, mean, log_std)
+    mb, lb = actor_fn(pibar, s)
+    kl = logp - logp_fn(u, mb, lb)
+    q = critics(critic, s, squash(u))
     q = q.min(0) if clip and not mean_q else q.mean(0)
     return np.mean(np.exp(log_alpha_sac) * logp + alpha * kl - q)
 

@@ -4,15 +4,23 @@ evaluation, and that the defaults leave every run exactly as before. Loss-level 
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+import reference as ref
+from helpers import perturb
 from test_engine import SCRATCH, TINY, point_dataset
 
+from proto_brax.algorithms import sac
+from proto_brax.algorithms.insample import weighted_log_likelihood
+from proto_brax.algorithms.learner import Pretrained, init_learner
 from proto_brax.config import HParams
 from proto_brax.data.replay import replay_sample
 from proto_brax.fidelity import Fidelity
+from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train import online
 
 CFG = dataclasses.replace(TINY, steps=400, eval_every=200, sampling="symmetric", learning_starts=1)
@@ -73,3 +81,118 @@ def test_official_fidelity_changes_the_run():
         runs[name] = np.asarray(m["critic_loss"])
     assert np.all(np.isfinite(runs["official"]))
     assert not np.array_equal(runs["default"], runs["official"])
+
+
+# ------------------------------------------------------------------------ the official code's policy (FIDELITY row 6)
+
+GNET = NetworkConfig(hidden=(8, 8), policy="gaussian")
+OBS = 4  # the point task's observation size
+
+
+def _gaussian_learner(seed=0):
+    nets = make_networks(GNET, 2)
+    hp = HParams.create(alpha_sac_init=0.2, gamma=0.9)
+    lrn = init_learner(jax.random.PRNGKey(seed), nets, online.ALGORITHMS["sac"], hp, OBS, 2, None)
+    # Distinct networks (and a log-std away from its init of 0) so that a swapped argument cannot pass.
+    lrn = lrn.replace(actor=perturb(lrn.actor, jax.random.PRNGKey(seed + 1)),
+                      critic_target=perturb(lrn.critic, jax.random.PRNGKey(seed + 2)),
+                      pibar=perturb(lrn.actor, jax.random.PRNGKey(seed + 3)))
+    return nets, hp, lrn
+
+
+def test_gaussian_policy_parameters_are_state_independent_and_shared_with_td3():
+    nets, _, lrn = _gaussian_learner()
+    assert lrn.actor["params"]["log_stds"].shape == (2,)
+    obs = jax.random.normal(jax.random.PRNGKey(9), (4, OBS))
+    mean, log_std = nets.actor.apply(lrn.actor, obs)
+    m_ref, l_ref = ref.gaussian_mean_tanh_actor(lrn.actor, np.asarray(obs, np.float64))
+    np.testing.assert_allclose(mean, m_ref, atol=1e-6)
+    np.testing.assert_allclose(log_std, l_ref, atol=1e-6)
+    assert np.all(np.asarray(log_std) == np.asarray(log_std)[0])  # the same std in every state
+    det = make_networks(GNET, 2, deterministic=True)
+    np.testing.assert_allclose(det.actor.apply(lrn.actor, obs), mean, atol=1e-7)  # TD3 on the same parameters
+    big = {"params": {**lrn.actor["params"], "log_stds": jnp.array([7.0, -9.0])}}
+    np.testing.assert_array_equal(nets.actor.apply(big, obs)[1][0], [2.0, -5.0])  # hard clip, as the official code
+
+
+@pytest.mark.parametrize("backup", [True, False])
+def test_gaussian_policy_proto_sac_losses_match_numpy(backup):
+    """PROTO-SAC with the official policy: the critic sees the unsquashed sample a = tanh(m) + σε, log π and the KL
+    are Gaussian densities of a (no Jacobian)."""
+    nets, hp, lrn = _gaussian_learner()
+    cfg = dataclasses.replace(CFG, net=GNET, value_reg_backup=backup)
+    batch = jax.tree.map(lambda x: x[:6], point_dataset())
+    key, alpha = jax.random.PRNGKey(7), 1.7
+    eps = np.asarray(jax.random.normal(key, (6, 2)), np.float64)
+    loss, _ = sac.critic_loss(lrn.critic, lrn, batch, key, alpha, hp, nets, cfg)
+    expected = ref.sac_critic_loss(lrn.actor, lrn.critic, lrn.critic_target, lrn.pibar, float(lrn.log_alpha_sac),
+                                   batch, eps, alpha, 0.9, backup, True, gaussian=True)
+    np.testing.assert_allclose(float(loss), expected, rtol=2e-5)
+    a_loss, _ = sac.actor_loss(lrn.actor, lrn.critic, lrn, batch.observations, key, alpha, nets, cfg)
+    a_expected = ref.sac_actor_loss(lrn.actor, lrn.critic, lrn.pibar, float(lrn.log_alpha_sac), batch.observations,
+                                    eps, alpha, True, gaussian=True)
+    np.testing.assert_allclose(float(a_loss), a_expected, rtol=2e-5)
+
+
+def test_gaussian_policy_acts_clipped_and_fits_clipped_dataset_actions():
+    nets, hp, lrn = _gaussian_learner()
+    lrn = lrn.replace(actor={"params": {**lrn.actor["params"], "log_stds": jnp.array([1.0, 1.0])}})  # std e
+    obs = jax.random.normal(jax.random.PRNGKey(2), (200, OBS))
+    a = np.asarray(sac.act(nets, lrn, obs, jax.random.PRNGKey(3), hp, deterministic=False))
+    assert a.min() == -1.0 and a.max() == 1.0  # samples leave the box; the env gets them clipped
+    mean = ref.gaussian_mean_tanh_actor(lrn.actor, np.asarray(obs, np.float64))[0]
+    np.testing.assert_allclose(sac.act(nets, lrn, obs, None, hp, deterministic=True), mean, atol=1e-6)
+    batch = jax.tree.map(lambda x: x[:6], point_dataset()).replace(
+        actions=jnp.array([[1.0, -1.0], [0.3, 0.2], [-0.99, 0.5], [0.0, 0.0], [1.0, 1.0], [-0.2, -1.0]]))
+    w = jnp.linspace(0.5, 2.0, 6)
+    loss, _ = weighted_log_likelihood(lrn.actor, nets, batch, w)
+    m, ls = ref.gaussian_mean_tanh_actor(lrn.actor, np.asarray(batch.observations, np.float64))
+    acts = np.clip(np.asarray(batch.actions, np.float64), -1 + 1e-5, 1 - 1e-5)
+    np.testing.assert_allclose(float(loss), -np.mean(np.asarray(w) * ref.normal_logpdf(acts, m, ls)), rtol=2e-5)
+
+
+# ------------------------------------------------------------- the critic's state across the switch (FIDELITY row 5)
+
+
+def test_carry_critic_state_takes_the_bundles_adam_and_target():
+    nets, hp, lrn = _gaussian_learner()
+    hp = hp.replace(lr_critic=jnp.float32(1e-4))
+    moved = jax.tree.map(lambda x: x + 0.5, lrn.critic_opt)  # moments, count and learning rate of "pretraining"
+    pre = Pretrained(actor=lrn.actor, critic=lrn.critic, critic_target=lrn.critic_target, critic_opt=moved)
+    algo = online.ALGORITHMS["sac"]
+    carried = init_learner(jax.random.PRNGKey(0), nets, algo, hp, OBS, 2, pre, carry_critic_state=True)
+    fresh = init_learner(jax.random.PRNGKey(0), nets, algo, hp, OBS, 2, pre)
+    for a, b in zip(jax.tree.leaves(carried.critic_target), jax.tree.leaves(lrn.critic_target)):
+        np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(jax.tree.leaves(fresh.critic_target)[0], jax.tree.leaves(lrn.critic_target)[0])
+    np.testing.assert_array_equal(carried.critic_opt.inner_state[0].count, moved.inner_state[0].count)
+    np.testing.assert_array_equal(jax.tree.leaves(carried.critic_opt.inner_state[0].mu)[0],
+                                  jax.tree.leaves(moved.inner_state[0].mu)[0])
+    assert float(carried.critic_opt.hyperparams["learning_rate"]) == np.float32(1e-4)  # the finetuning rate
+    assert int(fresh.critic_opt.inner_state[0].count) == 0
+    with pytest.raises(ValueError, match="carry_critic_state needs a bundle"):
+        init_learner(jax.random.PRNGKey(0), nets, algo, hp, OBS, 2, Pretrained(actor=lrn.actor),
+                     carry_critic_state=True)
+
+
+@pytest.mark.slow  # ~1 min of pretraining and finetuning compiles
+def test_proto_official_pretrains_and_finetunes_end_to_end(tmp_path):
+    """--algo proto-official: an EQL bundle with the official policy and extraction (weight scale 1, z clip 7), then
+    finetuning with every official switch, the critic's Adam state carried over."""
+    from proto_brax import sweep
+    from proto_brax.data.dataset import save_npz
+
+    data = tmp_path / "pt.npz"
+    save_npz(data, jax.device_get(point_dataset()), {"env": "point"})
+    args = sweep.parse_args(["--preset", "smoke", "--algo", "proto-official", "--seeds", "0", "--tau", "0.005",
+                             "--dataset", str(data), "--pretrain", "eql", "--pretrain-steps", "200",
+                             "--no-report", "--out", str(tmp_path / "o")])
+    assert args.policy == "gaussian" and args.fidelity.carry_critic_state and args.learning_starts == 1
+    sweep.run_sweep(args)
+    points = json.loads((tmp_path / "o" / "summary.json").read_text())["points"]
+    assert points and all(np.isfinite(p["final_normalized_score"]["mean"]) for p in points)
+    cfg = json.loads((tmp_path / "o" / "config.json").read_text())
+    meta = cfg["checkpoint_metadata"]
+    assert meta["net"]["policy"] == "gaussian"
+    assert meta["hparams"]["eql_weight_scale"] == 1.0 and meta["hparams"]["eql_z_clip"] == 7.0
+    assert cfg["finetune"]["fidelity"]["carry_critic_state"] is True

@@ -17,7 +17,7 @@ from jax import lax
 from proto_brax.algorithms.learner import adam, apply_grads
 from proto_brax.algorithms.regularizer import polyak
 from proto_brax.data.dataset import Transition
-from proto_brax.networks import Networks, tanh_gaussian_log_prob
+from proto_brax.networks import Networks
 
 
 @struct.dataclass
@@ -88,7 +88,7 @@ def init_offline_state(key, nets: Networks, obs_size: int, act_size: int, hp: Of
 def weighted_log_likelihood(actor, nets: Networks, batch: Transition, weight: jax.Array):
     """−E[w · log π(a|s)] over dataset actions (w constant): weighted behaviour cloning / AWR extraction."""
     mean, log_std = nets.actor.apply(actor, batch.observations)
-    logp = tanh_gaussian_log_prob(batch.actions, mean, log_std)
+    logp = nets.policy.log_prob(batch.actions, mean, log_std)
     loss = -jnp.mean(weight * logp)
     return loss, {"actor_loss": loss, "weight_mean": jnp.mean(weight), "log_prob": jnp.mean(logp)}
 

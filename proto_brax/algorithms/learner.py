@@ -32,6 +32,9 @@ class Pretrained:
     critic: dict | None = None
     value: dict | None = None
     log_alpha_sac: jax.Array | None = None  # CQL / Cal-QL bundles: the pretrained SAC temperature
+    # The critic's pretraining state, carried into finetuning with ``Fidelity.carry_critic_state`` (official code).
+    critic_target: dict | None = None
+    critic_opt: optax.OptState | None = None
 
 
 @struct.dataclass
@@ -78,9 +81,12 @@ class OnlineAlgorithm:
 
 def init_learner(
     key: jax.Array, nets: Networks, algo: OnlineAlgorithm, hp: HParams, obs_size: int, act_size: int,
-    pretrained: Pretrained | None,
+    pretrained: Pretrained | None, carry_critic_state: bool = False,
 ) -> Learner:
-    """Fresh learner: π₀, Q₀ (and V₀) from ``pretrained`` where given, random otherwise; π̄ = π₀."""
+    """Fresh learner: π₀, Q₀ (and V₀) from ``pretrained`` where given, random otherwise; π̄ = π₀.
+
+    ``carry_critic_state``: the critic's Adam state and target critic come from ``pretrained`` too (its learning rate
+    set to ``hp.lr_critic``); otherwise a fresh Adam, and the target is a copy of the critic."""
     k_actor, k_critic = jax.random.split(key)
     k_value, k_fresh = jax.random.fold_in(key, 1), jax.random.fold_in(key, 2)  # SAC/TD3 inits stay as before
     obs, act = jnp.zeros((1, obs_size)), jnp.zeros((1, act_size))
@@ -94,6 +100,15 @@ def init_learner(
     if algo.value:
         value = pretrained.value if pretrained is not None and pretrained.value is not None else nets.value.init(
             k_value, obs)
+    critic_target, critic_opt = critic, adam(hp.lr_critic).init(critic)
+    if carry_critic_state:
+        if pretrained is None or pretrained.critic_opt is None or pretrained.critic_target is None:
+            raise ValueError("carry_critic_state needs a bundle with the critic's optimizer state and target critic "
+                             "(Pretrained.critic_opt / critic_target); pass them, or turn carry_critic_state off.")
+        critic_target = pretrained.critic_target
+        opt = pretrained.critic_opt
+        critic_opt = opt._replace(hyperparams={**opt.hyperparams, "learning_rate": jnp.asarray(hp.lr_critic,
+                                                                                                jnp.float32)})
     log_alpha = None
     if algo.temperature:
         has = pretrained is not None and pretrained.log_alpha_sac is not None
@@ -101,11 +116,11 @@ def init_learner(
     return Learner(
         actor=actor,
         critic=critic,
-        critic_target=critic,
+        critic_target=critic_target,
         pibar=pi0,
         pi0=pi0,
         actor_opt=adam(hp.lr_actor).init(actor),
-        critic_opt=adam(hp.lr_critic).init(critic),
+        critic_opt=critic_opt,
         actor_target=actor if algo.target_actor else None,
         log_alpha_sac=log_alpha,
         alpha_opt=adam(hp.lr_alpha).init(log_alpha) if algo.temperature else None,

@@ -14,7 +14,7 @@ from proto_brax.algorithms.learner import Learner, OnlineAlgorithm, apply_grads
 from proto_brax.algorithms.regularizer import kl_penalty, polyak
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
-from proto_brax.networks import Networks, sample_tanh_gaussian
+from proto_brax.networks import Networks
 
 
 def reduce_q(q: jax.Array, clipped_double_q: bool) -> jax.Array:
@@ -49,7 +49,7 @@ def critic_loss(
     members and batch of (Q_i(s, a) − y)².
     """
     mean, log_std = nets.actor.apply(learner.actor, batch.next_observations)
-    a_next, u_next, logp_next = sample_tanh_gaussian(key, mean, log_std)
+    a_next, u_next, logp_next = nets.policy.sample(key, mean, log_std)
     # fold_in: the random member's key leaves the sample's key (and so every default run) unchanged.
     q_next = target_q(nets.critic.apply(learner.critic_target, batch.next_observations, a_next), cfg,
                       jax.random.fold_in(key, 1))
@@ -70,7 +70,7 @@ def actor_loss(
     """Actor loss with the PROTO penalty (Eq. 4): E[α_sac log π(a|s) + α (log π(a|s) − log π̄(a|s)) − Q(s, a)],
     Q the ensemble's min or mean (``actor_q``)."""
     mean, log_std = nets.actor.apply(actor, obs)
-    a, u, logp = sample_tanh_gaussian(key, mean, log_std)
+    a, u, logp = nets.policy.sample(key, mean, log_std)
     if cfg.regularizer:
         mean_bar, log_std_bar = nets.actor.apply(learner.pibar, obs)
         kl = kl_penalty(u, mean, log_std, lax.stop_gradient(mean_bar), lax.stop_gradient(log_std_bar))
@@ -131,18 +131,18 @@ def update(
 
 def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: HParams | None,
         deterministic: bool) -> jax.Array:
-    """a ~ π(·|s) (tanh-Gaussian), or its mode-like tanh(mean) for evaluation."""
+    """a ~ π(·|s) (clipped to the action box for the env), or the mean action tanh(mean) for evaluation."""
     mean, log_std = nets.actor.apply(learner.actor, obs)
     if deterministic:
-        return jnp.tanh(mean)
-    return sample_tanh_gaussian(key, mean, log_std)[0]
+        return nets.policy.mode(mean)
+    return nets.policy.to_env(nets.policy.sample(key, mean, log_std)[0])
 
 
 def deviation(nets: Networks, actor, other, obs: jax.Array, key: jax.Array) -> jax.Array:
     """Monte-Carlo KL(π‖other) on a batch of states (a diagnostic: π‖π̄ and π‖π₀)."""
     mean, log_std = nets.actor.apply(actor, obs)
     mean_o, log_std_o = nets.actor.apply(other, obs)
-    _, u, _ = sample_tanh_gaussian(key, mean, log_std)
+    _, u, _ = nets.policy.sample(key, mean, log_std)
     return jnp.mean(kl_penalty(u, mean, log_std, mean_o, log_std_o))
 
 

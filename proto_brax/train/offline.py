@@ -21,6 +21,7 @@ from proto_brax.train.evaluate import run_episodes
 OFFLINE_ALGOS = ("eql", "sql", "iql", "bc", "cql", "calql")
 VALUE_ALGOS = ("eql", "sql", "iql")  # bundles with a state-value network
 TEMPERATURE_ALGOS = ("cql", "calql")  # bundles with SAC's entropy temperature
+GAUSSIAN_POLICY_ALGOS = ("eql", "sql", "iql")  # also pretrain the official code's Gaussian policy (FIDELITY.md)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,6 +39,9 @@ class PretrainConfig:
     def __post_init__(self):
         if self.algo not in OFFLINE_ALGOS:
             raise ValueError(f"Unknown pretraining algo {self.algo!r}: choose one of {list(OFFLINE_ALGOS)}.")
+        if self.net.policy != "tanh_gaussian" and self.algo not in GAUSSIAN_POLICY_ALGOS:
+            raise ValueError(f"--policy {self.net.policy} is implemented for {list(GAUSSIAN_POLICY_ALGOS)}; "
+                             f"pretrain {self.algo} with --policy tanh_gaussian.")
         envs.get_spec(self.env)
         for name in ("steps", "log_every", "batch_size", "eval_episodes"):
             if getattr(self, name) < 1:
@@ -85,7 +89,7 @@ def make_pretrain(cfg: PretrainConfig) -> Pretrain:
         return state, jax.tree.map(jnp.mean, m)
 
     def evaluate(actor, key):
-        policy = lambda obs, k: jnp.tanh(nets.actor.apply(actor, obs)[0])  # noqa: E731
+        policy = lambda obs, k: nets.policy.mode(nets.actor.apply(actor, obs)[0])  # noqa: E731
         return run_episodes(env, horizon, policy, key, cfg.eval_episodes)
 
     return Pretrain(cfg=cfg, init=init, chunk=chunk, evaluate=evaluate, nets=nets, obs_size=obs_size,

@@ -70,6 +70,12 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
         algo = dataclasses.replace(algo, act=functools.partial(td3.act, noise_clip=cfg.fidelity.td3_expl_noise_clip))
     nets = make_networks(cfg.net, act_size, deterministic=cfg.algo == "td3")
     horizon = cfg.horizon
+    if cfg.fidelity.carry_critic_state and algo.init is not None:
+        raise ValueError(f"carry_critic_state is implemented for the learners built by init_learner (sac, td3, iql, "
+                         f"awac), not {cfg.algo!r}.")
+    if cfg.net.policy != "tanh_gaussian" and cfg.algo not in ("sac", "td3", "iql"):
+        raise ValueError(f"policy {cfg.net.policy!r} is implemented for sac, td3 and iql; run {cfg.algo!r} with the "
+                         "tanh_gaussian policy.")
     if algo.mc_returns and cfg.capacity < horizon * cfg.num_envs:
         raise ValueError(f"algo {cfg.algo!r} keeps Monte-Carlo returns in the buffer: buffer_capacity must be >= "
                          f"episode length × num_envs = {horizon * cfg.num_envs}; got {cfg.capacity}.")
@@ -91,7 +97,8 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
         if algo.init is not None:
             learner = algo.init(k_learner, nets, cfg, hp, obs_size, act_size, pretrained, dataset)
         else:
-            learner = init_learner(k_learner, nets, algo, hp, obs_size, act_size, pretrained)
+            learner = init_learner(k_learner, nets, algo, hp, obs_size, act_size, pretrained,
+                                   cfg.fidelity.carry_critic_state)
         env_state = jax.vmap(lambda k: envs.env_reset(env, k))(jax.random.split(k_env, cfg.num_envs))
         buffer = replay_init(cfg.capacity, obs_size, act_size, mc_returns=algo.mc_returns)
         if preload:  # fold_in: the default runs' keys stay as they were
