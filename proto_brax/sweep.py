@@ -431,6 +431,14 @@ def episode_stats(env: str, returns, lengths, success_steps=None) -> dict[str, f
     return out
 
 
+def steady_throughput(rows: list[dict], full_updates: int) -> float | None:
+    """Mean grid updates/s over the chunks after the first (which includes compilation) whose runs updated at every
+    step: a warm-up chunk does fewer updates, or none, in the same time and would under-report it."""
+    per_chunk = {r["chunk"]: r["grid_updates_per_s"] for r in rows
+                 if r.get("chunk", 0) > 0 and r.get("updates") == full_updates}
+    return float(np.mean(list(per_chunk.values()))) if per_chunk else None
+
+
 def _rows(chunk: int, m: dict, grid, env: str, updates_per_s: float) -> list[dict]:
     from proto_brax.envs import normalized_score
 
@@ -739,8 +747,8 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         "first_chunk_seconds_incl_compile": timing["first"],
     }))
     print_table(summary, grid_keys)
-    steady = [r["grid_updates_per_s"] for r in rows if r["chunk"] > 0]
-    throughput = f"{np.mean(steady):.0f} updates/s over the grid" if steady else "not measured (one chunk)"
+    steady = steady_throughput(rows, cfg.eval_every * cfg.updates_per_step)
+    throughput = f"{steady:.0f} updates/s over the grid" if steady else "not measured (no full chunk after the first)"
     if timing["first"] is None:
         print(f"\nno chunk left to run: the sweep in {out} was complete; steady throughput {throughput}")
     else:

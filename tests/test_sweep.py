@@ -223,3 +223,12 @@ def test_summary_reports_success_where_the_rows_have_it():
     assert goal["final_success_rate"]["mean"] == 0.75 and goal["final_steps_to_goal"]["mean"] == 400.0
     loco = sweep.summarize_runs(rows({0: {}, 1: {}}), ["tau"])[0]
     assert "final_success_rate" not in loco and "final_steps_to_goal" not in loco
+
+
+def test_steady_throughput_leaves_out_the_first_and_the_warm_up_chunks():
+    """Chunk 0 compiles; chunk 1 is half warm-up (fewer updates, same time): neither is steady throughput."""
+    rows = [{"chunk": c, "run": r, "updates": u, "grid_updates_per_s": v}
+            for c, u, v in ((0, 100, 5.0), (1, 50, 40.0), (2, 100, 90.0), (3, 100, 110.0)) for r in range(3)]
+    rows.append({"initial": True, "chunk": -1, "grid_updates_per_s": float("nan")})  # π₀'s row
+    assert sweep.steady_throughput(rows, 100) == 100.0
+    assert sweep.steady_throughput(rows[:6], 100) is None
