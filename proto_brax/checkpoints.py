@@ -481,4 +481,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
+    from proto_brax.startup import quiet_start
+
+    quiet_start()
     main()

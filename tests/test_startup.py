@@ -1,0 +1,30 @@
+"""The command lines start quietly: MJX's warp lines and Brax's unmaintained-pipelines warning are filtered, at our
+entry points only, and other output and warnings still get through."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+SCRIPT = """
+import warnings
+{start}
+from proto_brax import envs
+envs.make_env("hopper")  # loads an MJCF model: Brax's warning
+warnings.warn("a real warning")
+print("done")
+"""
+
+
+def _run(start: str) -> str:
+    out = subprocess.run([sys.executable, "-c", SCRIPT.format(start=start)], capture_output=True, text=True,
+                         check=True)
+    return out.stdout + out.stderr
+
+
+def test_quiet_start_filters_only_the_known_noise():
+    noisy = _run("")
+    assert "Failed to import warp" in noisy and "not actively being maintained" in noisy  # what is filtered exists
+    quiet = _run("from proto_brax.startup import quiet_start; quiet_start()")
+    assert "warp" not in quiet and "not actively being maintained" not in quiet
+    assert "a real warning" in quiet and "done" in quiet
