@@ -36,7 +36,7 @@ class SweepArgs:
     (× seeds)."""
 
     env: str = "hopper"
-    """Registered env (hopper, walker2d, halfcheetah, ant, point)."""
+    """Registered env (--help lists them all in its description)."""
     backend: str | None = None
     """Brax backend (generalized, positional, spring, mjx); default: the env's measured default."""
     algo: MethodName = "proto-sac"
@@ -833,8 +833,12 @@ def parse_args(argv: list[str] | None = None) -> SweepArgs:
         description += f" --algo {algo}: {method.summary}." + (
             f" Its hyper-parameters under --hp: {method.hp}." if method.hp else "")
     presets = "; ".join(f"{k}: {v[0]}" for k, v in PRESETS.items())
-    return tyro.cli(SweepArgs, default=defaults, args=argv,
-                    description=f"{description} Presets (--preset NAME, before other flags): {presets}.")
+    description += f" Presets (--preset NAME, before other flags): {presets}."
+    if "-h" in argv or "--help" in argv:  # the registry imports Brax: only when help is shown
+        from proto_brax.envs import REGISTRY
+
+        description += f" Envs (--env): {', '.join(REGISTRY)}."
+    return tyro.cli(SweepArgs, default=defaults, args=argv, description=description)
 
 
 def debug_enabled(argv: list[str] | None = None) -> bool:

@@ -232,3 +232,12 @@ def test_steady_throughput_leaves_out_the_first_and_the_warm_up_chunks():
     rows.append({"initial": True, "chunk": -1, "grid_updates_per_s": float("nan")})  # π₀'s row
     assert sweep.steady_throughput(rows, 100) == 100.0
     assert sweep.steady_throughput(rows[:6], 100) is None
+
+
+def test_help_lists_every_registered_env(capsys):
+    from proto_brax.envs import REGISTRY
+
+    with pytest.raises(SystemExit):
+        sweep.parse_args(["--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "Envs (--env):" in out and all(name in out for name in REGISTRY)
