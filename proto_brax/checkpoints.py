@@ -374,9 +374,14 @@ def dataset_label(name_or_path: str) -> str:
     return Path(name_or_path).stem if Path(name_or_path).suffix else name_or_path
 
 
-def validate_bundle_dataset(meta: dict[str, Any], dataset: str) -> None:
-    """Refuse to finetune a bundle with another dataset in the buffer than it was pretrained on, naming the fix."""
+def validate_bundle_dataset(meta: dict[str, Any], dataset: str, content_hash: str | None = None) -> None:
+    """Refuse to finetune a bundle with another dataset in the buffer than it was pretrained on, naming the fix.
+
+    The same rows under another name (e.g. a Minari export of the bundle's dataset) are the same dataset: with the
+    loaded data's ``content_hash`` equal to the one the bundle was pretrained on, the names need not match."""
     ours, theirs = dataset_label(dataset), meta.get("dataset")
+    if content_hash is not None and content_hash == meta.get("dataset_content_hash"):
+        return
     if theirs is not None and theirs != ours:
         raise CheckpointError(f"The checkpoint was pretrained on dataset {theirs!r}, the finetune reads {ours!r}: pass "
                               f"--dataset {theirs}, or a bundle of {ours} (python -m proto_brax.pretrain --dataset "

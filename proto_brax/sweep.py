@@ -606,10 +606,13 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     # The bundle is validated (and loaded: a few MB) before any dataset is built or read.
     pretrained, per_run, bmeta = _load_checkpoint(None if args.pretrain else ckpt, cfg, grid, args.algo)
     from proto_brax.checkpoints import bundle_dataset_record, regenerated_note, validate_bundle_dataset
+    from proto_brax.data.generate import dataset_names
 
-    if bmeta is not None and dataset_name is not None:
-        validate_bundle_dataset(bmeta, dataset_name)
+    if bmeta is not None and dataset_name in dataset_names():  # by name, before a registered dataset is built;
+        validate_bundle_dataset(bmeta, dataset_name)  # a file or Minari id may hold the bundle's rows: by content
     dataset, dmeta = _load_dataset(dataset_name, args.dataset_size)  # non-finite values are refused here
+    if bmeta is not None and dataset_name is not None:
+        validate_bundle_dataset(bmeta, dataset_name, (dmeta or {}).get("content_hash"))
     from proto_brax.data.dataset import transform_rewards, validate_for_env, with_returns_to_go
     from proto_brax.train.online import ALGORITHMS, make_finetune
 

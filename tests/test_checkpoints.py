@@ -126,6 +126,19 @@ def test_regenerated_dataset_is_recorded_not_refused(bundle):
     checkpoints.validate_bundle_dataset(meta, "/elsewhere/point-noisy.npz")  # a file's stem is its name
 
 
+def test_bundle_accepts_its_own_rows_under_another_name(bundle):
+    """A Minari export (or a copy) of the bundle's dataset holds the same rows under another name: accepted by
+    content hash; another name with other rows is still refused."""
+    _, _, meta = bundle
+    same = meta["dataset_content_hash"]
+    assert same
+    checkpoints.validate_bundle_dataset(meta, "proto_brax/point/noisy-v0", same)
+    with pytest.raises(checkpoints.CheckpointError, match="pretrained on dataset"):
+        checkpoints.validate_bundle_dataset(meta, "proto_brax/point/noisy-v0", "0" * 64)
+    with pytest.raises(checkpoints.CheckpointError, match="pretrained on dataset"):
+        checkpoints.validate_bundle_dataset(meta, "proto_brax/point/noisy-v0")
+
+
 def test_checkpoints_cli_lists_bundles(bundle, capsys):
     root, _, _ = bundle
     checkpoints.main(["list", str(root)])
