@@ -142,3 +142,57 @@ def test_unknown_task_and_overrides():
         gym_v5.get_task("swimmer")
     assert gym_v5.GymV5("ant", include_cfrc_ext_in_observation=False).observation_size == 27
     assert mujoco.mjtIntegrator(gym_v5.load_model("halfcheetah").opt.integrator) == mujoco.mjtIntegrator.mjINT_EULER
+
+
+# Lockstep agreement of float32 MJX with float64 MuJoCo (gymnasium's env), from gymnasium's reset(seed=0), on the
+# uniform random actions of default_rng(0), both continuing past terminations. Measured 2026-12-07 (2-core CPU):
+# max errors over the window — hopper 25 steps |Δqpos| 3e-7, |Δobs| 5e-6, |Δr| 8e-7 (it falls at step 26, on both);
+# walker2d 45 steps 1.1e-5 / 3.5e-4 / 1e-5 (falls at 46 on both); halfcheetah 20 steps 1.5e-4 / 2.9e-3 / 2.8e-4,
+# then float32 chaos (Δqpos 0.06 by step 40; the same run in float64 MJX stays within 1e-9 for 40 steps, see below);
+# ant 1 step 3.5e-7, Δqpos 0.04 by step 10 — in float64 MJX too, so it is not round-off but MJX 3.17's contact
+# model differing from MuJoCo 4.0's (proto_brax/antmaze.py: plane-capsule friction pyramid orientation). The
+# tolerances below are those maxima times ~10.
+LOCKSTEP = {  # task: (steps, qpos_tol, obs_tol, reward_tol)
+    "hopper": (25, 3e-6, 5e-5, 1e-5),
+    "walker2d": (45, 1e-4, 3e-3, 1e-4),
+    "halfcheetah": (20, 2e-3, 3e-2, 3e-3),
+    "ant": (1, 3e-6, 3e-5, 3e-6),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", TASKS)
+def test_lockstep_matches_gymnasium(task):
+    steps, qpos_tol, obs_tol, reward_tol = LOCKSTEP[task]
+    env = envs.make_env(f"{task}-v5")
+    native = gym_v5.native_env(task)
+    native.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-1.0, 1.0, (steps, env.action_size))
+    run = gym_v5.lockstep(env, jax.jit(env.step), native, actions)
+    assert run["qpos_err"].max() < qpos_tol, run["qpos_err"]
+    assert run["obs_err"].max() < obs_tol, run["obs_err"]
+    assert run["reward_err"].max() < reward_tol, run["reward_err"]
+    np.testing.assert_array_equal(run["done"], run["native_done"])
+
+
+@pytest.mark.slow
+def test_float64_mjx_matches_gymnasium_to_roundoff():
+    """In float64 (a subprocess with jax_enable_x64) MJX's halfcheetah follows gymnasium's for 40 random-action steps
+    within 1e-8: the env is MuJoCo's, and float32 is what makes the fast envs drift (measured: 2e-10 at 40 steps)."""
+    import subprocess
+    import sys
+
+    code = """
+import jax
+jax.config.update("jax_enable_x64", True)
+import numpy as np
+from proto_brax import gym_v5
+env = gym_v5.GymV5("halfcheetah")
+native = gym_v5.native_env("halfcheetah")
+native.reset(seed=0)
+run = gym_v5.lockstep(env, jax.jit(env.step), native, np.random.default_rng(0).uniform(-1, 1, (40, 6)))
+print("MAXERR", run["qpos_err"].max(), run["obs_err"].max(), run["reward_err"].max())
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    errs = [float(v) for v in out.split("MAXERR")[1].split()]
+    assert max(errs) < 1e-8, errs
