@@ -112,9 +112,12 @@ def missing_bundle(dataset: str, method: str) -> str | None:
     if not m.bundles:
         return None
     kind = m.bundles[0]
-    if (ROOT / "checkpoints" / "pretrained" / dataset / kind / "metadata.json").exists():
+    if (ROOT / "checkpoints" / "pretrained" / dataset / (kind + m.bundle_suffix) / "metadata.json").exists():
         return None
-    return f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}"
+    extra = "".join([f" --policy {m.defaults['policy']}" if "policy" in m.defaults else ""]
+                    + [f" --hp {k} {v:g}" for k, v in sorted(m.defaults.get("pretrain_hp", {}).items())])
+    return (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}{extra} --out "
+            f"checkpoints/pretrained/{dataset}/{kind + m.bundle_suffix}")
 
 
 def publish(dataset: str, method: str, args: Args) -> None:
