@@ -181,7 +181,7 @@ def pinned_builds(record: Path) -> set[str]:
             if generation_numerics_pinned(b.get("xla_flags") or "")}
 
 
-def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
+def dataset_table(dataset: str, per: dict[str, dict], before: dict) -> list[str]:
     methods = " ".join(m for m in methods_of(per))
     lines = [f"### {dataset}", "",
              f"`python benchmarks/locomotion.py run --datasets {dataset} --methods {methods}`, then "
@@ -190,7 +190,8 @@ def dataset_table(dataset: str, per: dict[str, dict]) -> list[str]:
              "| seeds | buffer data |",
              "|---|---|---|---|---|---|---|---|"]
     for m in methods_of(per):
-        lines.append(f"| {label(m, per[m])} | {fmt(per[m]['offline'])} | {score_cells(per[m]['runs'])} | "
+        lines.append(f"| {label(m, per[m], dataset, before)} | {fmt(per[m]['offline'])} | "
+                     f"{score_cells(per[m]['runs'])} | "
                      f"{buffer_data(per[m]['config'])} |")
     return lines + ["", f"![{dataset} learning curves](results/locomotion/{dataset}/curves.png)", ""]
 
@@ -421,16 +422,22 @@ def coverage(table) -> list[str]:
             f"{', '.join(none) or 'none'}. Every claim below is about the published sweeps only.", ""]
 
 
-def pre_fix_td3(per_method: dict) -> bool:
+PRE_FIX_TD3 = ROOT / "benchmarks" / "results" / "proto_td3_before_fix.json"
+
+
+def pre_fix_td3(per_method: dict, dataset: str, before: dict) -> bool:
     """A proto-td3 sweep run before issue 35 fixed its critic backup (the penalty was on the smoothed target action,
-    α‖clip(ε)‖²). Sweeps since then record the fidelity switches in their finetune config; earlier ones do not."""
-    return "fidelity" not in per_method["config"].get("finetune", {})
+    α‖clip(ε)‖²): its final scores are those that ``proto_td3_before_fix.json`` recorded for the dataset (a rerun
+    with another backup cannot give the same float)."""
+    old = before.get(dataset)
+    final = per_method["summary"]["points"][0]["final_normalized_score"]["mean"]
+    return old is not None and final == old["final_normalized_score"]["mean"]
 
 
-def td3_fix_status(table) -> list[str]:
+def td3_fix_status(table, before: dict) -> list[str]:
     """How many published proto-td3 sweeps use the fixed backup; the rest are named (marked † in the tables)."""
-    sweeps = [(d, per["proto-td3"]) for d, per in sorted(table.items()) if "proto-td3" in per]
-    old = [d for d, m in sweeps if pre_fix_td3(m)]
+    sweeps = [d for d, per in sorted(table.items()) if "proto-td3" in per]
+    old = [d for d in sweeps if pre_fix_td3(table[d]["proto-td3"], d, before)]
     if not old:
         return []
     return [f"**PROTO-TD3 backup fix (issue 35):** {len(sweeps) - len(old)} of {len(sweeps)} published proto-td3 "
@@ -440,8 +447,8 @@ def td3_fix_status(table) -> list[str]:
             "keeps all 12 pre-fix numbers.", ""]
 
 
-def label(m: str, per_method: dict) -> str:
-    return f"{m}†" if m == "proto-td3" and pre_fix_td3(per_method) else m
+def label(m: str, per_method: dict, dataset: str, before: dict) -> str:
+    return f"{m}†" if m == "proto-td3" and pre_fix_td3(per_method, dataset, before) else m
 
 
 def readme_block(page_lines: list[str]) -> str:
@@ -477,7 +484,8 @@ def render(args: Args) -> tuple[str, str]:
              f"Online budget: {', '.join(f'{b:,}' for b in budgets)} steps per run (the paper: 10⁶), α annealed over "
              "the same fraction of the run; normalized scores use this suite's Brax references "
              "(`proto_brax/envs.py`), so they are not comparable to D4RL numbers.", ""]
-    covered, claimed = coverage(table) + td3_fix_status(table), claims(table, cost)  # once: the page and README share
+    before = json.loads(PRE_FIX_TD3.read_text())["sweeps"] if PRE_FIX_TD3.exists() else {}
+    covered, claimed = coverage(table) + td3_fix_status(table, before), claims(table, cost)  # the page and README
     lines += covered
     lines += provenance(table, pinned_builds(args.record))
     lines += claimed
@@ -496,7 +504,7 @@ def render(args: Args) -> tuple[str, str]:
     lines += ["", "## Per dataset", ""]
     for d in sorted(d for d, per in table.items() if methods_of(per)):
         dataset_curves(d, table[d], args.results / d / "curves.png")
-        lines += dataset_table(d, table[d])
+        lines += dataset_table(d, table[d], before)
     lines += ablation_tables(table)
     lines += cost_table(cost)
     return "\n".join(lines).rstrip() + "\n", readme_block(covered + claimed)

@@ -320,16 +320,24 @@ def test_ablation_reading_counts_values_whose_final_ci_overlaps_the_defaults():
 
 
 def test_pre_fix_proto_td3_sweeps_are_named_and_marked():
-    """proto-td3 sweeps without fidelity switches in their config predate issue 35's backup fix: the status line
-    counts and names them, their table rows carry †; a sweep with the switches is neither."""
+    """A proto-td3 sweep whose final score is the one recorded before issue 35's backup fix is pre-fix: the status
+    line counts and names it, its table row carries †; a rerun (another score) is neither."""
     rmd = load_module()
-    old = {"config": {"finetune": {"algo": "td3"}}}
-    new = {"config": {"finetune": {"algo": "td3", "fidelity": {"td3_backup": "paper"}}}}
-    table = {"a-medium": {"proto-td3": old}, "b-medium": {"proto-td3": new}, "c-medium": {"proto-sac": old}}
-    assert rmd.pre_fix_td3(old) and not rmd.pre_fix_td3(new)
-    (status, _), = [rmd.td3_fix_status(table)]
+
+    def sweep(final):
+        return {"summary": {"points": [{"final_normalized_score": {"mean": final}}]}}
+
+    before = {"a-medium": {"final_normalized_score": {"mean": 41.5}},
+              "b-medium": {"final_normalized_score": {"mean": 50.0}}}
+    table = {"a-medium": {"proto-td3": sweep(41.5)}, "b-medium": {"proto-td3": sweep(47.25)},
+             "c-medium": {"proto-sac": sweep(41.5)}}
+    assert rmd.pre_fix_td3(table["a-medium"]["proto-td3"], "a-medium", before)
+    assert not rmd.pre_fix_td3(table["b-medium"]["proto-td3"], "b-medium", before)
+    assert not rmd.pre_fix_td3(sweep(41.5), "z-medium", before)  # no record: not pre-fix
+    (status, _), = [rmd.td3_fix_status(table, before)]
     assert "1 of 2 published proto-td3 sweeps ran with the fixed backup" in status and "a-medium" in status
     assert "b-medium" not in status
-    assert rmd.label("proto-td3", old) == "proto-td3†" and rmd.label("proto-td3", new) == "proto-td3"
-    assert rmd.label("proto-sac", old) == "proto-sac"
-    assert rmd.td3_fix_status({"b-medium": {"proto-td3": new}}) == []
+    assert rmd.label("proto-td3", table["a-medium"]["proto-td3"], "a-medium", before) == "proto-td3†"
+    assert rmd.label("proto-td3", table["b-medium"]["proto-td3"], "b-medium", before) == "proto-td3"
+    assert rmd.label("proto-sac", sweep(41.5), "a-medium", before) == "proto-sac"
+    assert rmd.td3_fix_status({"b-medium": {"proto-td3": sweep(47.25)}}, before) == []
