@@ -75,7 +75,8 @@ def test_official_fidelity_changes_the_run():
     data, hp = point_dataset(), HParams.create()
     base = dataclasses.replace(CFG, steps=200, eval_every=200)
     runs = {}
-    for name, fid in (("default", Fidelity()), ("official", Fidelity.official())):
+    official = dataclasses.replace(Fidelity.official(), carry_critic_state=False)  # (no bundle here: random π₀, Q₀)
+    for name, fid in (("default", Fidelity()), ("official", official)):
         ft = online.make_finetune(dataclasses.replace(base, fidelity=fid))
         _, m = jax.jit(ft.finetune)(hp, jax.random.PRNGKey(5), None, data)
         runs[name] = np.asarray(m["critic_loss"])
