@@ -37,7 +37,33 @@ return statistics still agree). ``done`` is also 1 when the physics state stops 
 observation and reward (as ``antmaze.py``): gymnasium's ant and hopper terminate then too, its halfcheetah would
 carry NaNs on. Every constructor argument of gymnasium's v5 envs that changes dynamics or rewards can be overridden
 by keyword (``TaskSpec`` fields), e.g. ``GymV5("ant", include_cfrc_ext_in_observation=False)`` gives the 27-dim
-observation; ``solver_iterations`` / ``ls_iterations`` cap MJX's Newton solver (default: the XML's 100 / 50).
+observation; ``solver_iterations`` / ``ls_iterations`` cap MJX's Newton solver (default: the XML's 100 / 50; on
+hopper, 4 / 8 changed neither the trajectory nor the speed, so the defaults stay).
+
+**Measured** (``benchmarks/results/gym_v5_check.json``, 2026-12-06, the 2-core CPU shared with other jobs, load
+average 5-10, so speeds are ±50%; ``tests/test_gym_v5.py`` for the fixed-seed windows):
+
+* *Formulas and model*: every array field of our ``MjModel`` and its physics options equal gymnasium's; on the states
+  gymnasium's own env steps through, our observation, reward terms, health and forward velocity equal its values
+  exactly in numpy (within 2e-5 in float32 jnp); reset draws pass per-coordinate two-sample KS tests against 1000
+  gymnasium resets; the reset observation matches (1e-6).
+* *Lockstep* (same state, same random actions, float32 MJX vs float64 MuJoCo; 4 starts x 100 steps; max over starts):
+  hopper |Δqpos| 9e-8 after 1 step, 5e-7 after 10, 2e-6 after 50, never above 1e-3 in 100 steps; walker2d 2e-7,
+  4e-6, 3e-5, never above 1e-3; both terminate on the same step in every run. halfcheetah 3e-7 after 1 step, 9e-4
+  after 10, then float32 chaos: above 1e-3 from step 13-35, above 0.1 from step 37-64 — in float64 MJX the same run
+  stays within 2e-10 for 40 steps (the slow test), so the env is MuJoCo's and only the precision differs. ant 2e-6
+  after 1 step but above 1e-3 from step 3-6 and 0.1 from step 7-22, *also in float64* (3.5e-7 after 1 step, 0.04
+  after 10): MJX 3.17's contacts differ from MuJoCo 4.0's here (``antmaze.py`` notes the plane-capsule friction
+  pyramid's orientation; not isolated further), so ant trajectories are statistically, not pointwise, the same.
+* *Return statistics* of the uniform random policy, 64 episodes each, ours vs gymnasium (mean ± s.e.): hopper
+  18.8 ± 2.6 vs 16.8 ± 2.1 (z 0.58); walker2d 1.46 ± 0.71 vs 1.35 ± 0.87 (z 0.10); halfcheetah −297.8 ± 9.4 vs
+  −283.5 ± 9.9 (z −1.05); ant: see the JSON. Differences within their 95% CIs.
+* *Speed* (env steps/s after compile, ``lax.scan``; batch 1 / batch 64 all envs together): hopper 107 / 137 (Brax
+  generalized 698 / 5189), walker2d 195 / 103 (Brax generalized 957 / 4088), halfcheetah 871 / 683 (Brax
+  positional 770 / 2488); native gymnasium, one env: 2.3k / 7.8k / 18k. RK4 (hopper, walker2d, ant) costs four
+  forward passes per substep and 4-5 substeps per step; MJX gains nothing from batching on this CPU. At batch 1 the
+  env step is 1.1 ms (halfcheetah) to 5-9 ms (hopper, walker2d) beside ~5.1 ms for one SAC update, i.e. 18% to
+  50-65% of an online step: cheap for halfcheetah, not for the RK4 walkers on this CPU (a GPU is where MJX pays).
 """
 
 from __future__ import annotations
