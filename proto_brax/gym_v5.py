@@ -57,13 +57,16 @@ average 5-10, so speeds are ±50%; ``tests/test_gym_v5.py`` for the fixed-seed w
   pyramid's orientation; not isolated further), so ant trajectories are statistically, not pointwise, the same.
 * *Return statistics* of the uniform random policy, 64 episodes each, ours vs gymnasium (mean ± s.e.): hopper
   18.8 ± 2.6 vs 16.8 ± 2.1 (z 0.58); walker2d 1.46 ± 0.71 vs 1.35 ± 0.87 (z 0.10); halfcheetah −297.8 ± 9.4 vs
-  −283.5 ± 9.9 (z −1.05); ant: see the JSON. Differences within their 95% CIs.
+  −283.5 ± 9.9 (z −1.05); ant −57.2 ± 12.4 vs −35.8 ± 7.9 (z −1.46). All four differences lie within their 95%
+  CIs, but ant's random episodes last longer on MJX (mean 166 vs 108 steps; they end when the torso leaves
+  0.2 <= z <= 1, which the contact difference above moves), a sign its dynamics differ beyond what 64 returns show.
 * *Speed* (env steps/s after compile, ``lax.scan``; batch 1 / batch 64 all envs together): hopper 107 / 137 (Brax
   generalized 698 / 5189), walker2d 195 / 103 (Brax generalized 957 / 4088), halfcheetah 871 / 683 (Brax
-  positional 770 / 2488); native gymnasium, one env: 2.3k / 7.8k / 18k. RK4 (hopper, walker2d, ant) costs four
+  positional 770 / 2488), ant 91 / 103 (Brax generalized 1878 / 4902); native gymnasium, one env: 2.3k / 7.8k /
+  18k / 2.4k. RK4 (hopper, walker2d, ant) costs four
   forward passes per substep and 4-5 substeps per step; MJX gains nothing from batching on this CPU. At batch 1 the
-  env step is 1.1 ms (halfcheetah) to 5-9 ms (hopper, walker2d) beside ~5.1 ms for one SAC update, i.e. 18% to
-  50-65% of an online step: cheap for halfcheetah, not for the RK4 walkers on this CPU (a GPU is where MJX pays).
+  env step is 1.1 ms (halfcheetah) to 5-11 ms (hopper, walker2d, ant) beside ~5.1 ms for one SAC update, i.e. 18%
+  to 50-68% of an online step: cheap for halfcheetah, not for the RK4 walkers on this CPU (a GPU is where MJX pays).
 """
 
 from __future__ import annotations
