@@ -59,8 +59,6 @@ class PretrainArgs:
 ALGO_HP = {"cql": {"lr_actor": 1e-4}, "calql": {"lr_actor": 1e-4}}
 
 
-def default_layer_norm(env: str) -> bool:
-    return env != "halfcheetah"
 
 
 def check_out(out: Path, overwrite: bool) -> None:
@@ -107,7 +105,7 @@ def pretrain(args: PretrainArgs) -> dict:
     data = transform_rewards(data, scale, shift)
     if args.algo == "calql":
         data = with_returns_to_go(data, float(hp.gamma))
-    ln = default_layer_norm(env) if args.critic_layer_norm is None else args.critic_layer_norm
+    ln = envs.default_layer_norm(env) if args.critic_layer_norm is None else args.critic_layer_norm
     cfg = PretrainConfig(algo=args.algo, env=env, net=NetworkConfig(hidden=tuple(args.hidden), critic_layer_norm=ln,
                                                                  policy=args.policy),
                          steps=args.steps, log_every=args.log_every, batch_size=args.batch_size,

@@ -136,6 +136,7 @@ class SweepArgs:
 
 def _finetune_config(args: SweepArgs):
     from proto_brax.config import FinetuneConfig
+    from proto_brax.envs import default_layer_norm
     from proto_brax.networks import NetworkConfig
 
     method = get_method(args.algo)
@@ -146,7 +147,7 @@ def _finetune_config(args: SweepArgs):
     return FinetuneConfig(
         env=args.env, backend=args.backend, algo=method.algo, regularizer=method.regularizer,
         net=NetworkConfig(hidden=tuple(args.hidden), critic_layer_norm=(
-            args.env != "halfcheetah" if args.critic_layer_norm is None else args.critic_layer_norm),
+            default_layer_norm(args.env) if args.critic_layer_norm is None else args.critic_layer_norm),
             policy=args.policy),
         steps=args.steps, eval_every=args.eval_every, eval_episodes=args.eval_episodes, batch_size=args.batch_size,
         learning_starts=args.learning_starts, sampling=sampling, offline_fraction=args.offline_fraction,

@@ -103,8 +103,12 @@ def test_sweep_finetune_only_from_bundle(bundle, tmp_path, capsys):
     # the buffer holds the very rows the bundle was pretrained on, and config.json says so
     assert cfg["dataset_vs_bundle"] == {"dataset": "point-noisy", "bundle_content_hash": meta["dataset_content_hash"],
                                         "content_hash": meta["dataset_content_hash"], "same_content": True}
-    other = tmp_path / "point-other.npz"  # another dataset than the bundle's: refused before anything is written
-    shutil.copy(data_file, other)
+    same = tmp_path / "point-copy.npz"  # the bundle's rows under another name (e.g. a Minari export): accepted
+    shutil.copy(data_file, same)
+    sweep.run_sweep(dataclasses.replace(args, dataset=str(same), out=tmp_path / "same"))
+    other = tmp_path / "point-other.npz"  # other rows under another name: refused before anything is written
+    data = jax.device_get(point_dataset())
+    save_npz(other, data.replace(rewards=data.rewards + 1.0), {"env": "point", "kind": "noisy-expert"})
     with pytest.raises(checkpoints.CheckpointError, match="pretrained on dataset 'point-noisy', the finetune reads "
                                                           "'point-other': pass --dataset point-noisy"):
         sweep.run_sweep(dataclasses.replace(args, dataset=str(other), out=tmp_path / "other"))

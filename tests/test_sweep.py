@@ -241,3 +241,16 @@ def test_help_lists_every_registered_env(capsys):
         sweep.parse_args(["--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert "Envs (--env):" in out and all(name in out for name in REGISTRY)
+
+
+def test_critic_layer_norm_rule_is_the_registrys():
+    """The paper's rule (LayerNorm on Q and V except halfcheetah) is one registry field, read by sweep and pretrain."""
+    from proto_brax.envs import default_layer_norm
+
+    assert default_layer_norm("hopper") and default_layer_norm("ant-v5")
+    assert not default_layer_norm("halfcheetah") and not default_layer_norm("halfcheetah-v5")
+    cfg = sweep._finetune_config(sweep.SweepArgs(env="halfcheetah", dataset="none", checkpoint="none"))
+    assert cfg.net.critic_layer_norm is False
+    cfg = sweep._finetune_config(sweep.SweepArgs(env="halfcheetah", dataset="none", checkpoint="none",
+                                                 critic_layer_norm=True))
+    assert cfg.net.critic_layer_norm is True
