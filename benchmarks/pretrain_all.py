@@ -2,6 +2,7 @@
 
     python benchmarks/pretrain_all.py                              # EQL and BC+FQE on the 12 locomotion datasets
     python benchmarks/pretrain_all.py --algos iql --envs hopper    # a subset
+    python benchmarks/pretrain_all.py --algos --methods proto-official   # a method's own bundles (eql-official)
 
 Each pair runs ``python -m proto_brax.pretrain --dataset ENV-KIND --algo ALGO --seeds 0 --steps 100000`` (the paper's
 10⁵ steps) into ``checkpoints/pretrained/ENV-KIND/ALGO``; a pair whose bundle exists is skipped, so an interrupted
@@ -38,6 +39,9 @@ class Args:
     envs: tuple[str, ...] = ("hopper", "walker2d", "halfcheetah", "ant")
     kinds: tuple[str, ...] = ("medium", "random", "medium-replay")
     algos: tuple[str, ...] = ("eql", "bc")
+    methods: tuple[str, ...] = ()
+    """Sweep methods whose bundles are a variant of their kind (proto-official: eql-official, pretrained with its
+    --policy and --pretrain-hp defaults), made besides --algos."""
     steps: int = 100_000
     seeds: tuple[int, ...] = (0,)
     workers: int = 2
@@ -54,22 +58,37 @@ def cached_hash(dataset: str) -> str | None:
     return cached_metadata(path)["content_hash"] if path.exists() else None
 
 
-def pending(args: Args) -> list[tuple[str, str, bool]]:
-    """(dataset, algo, stale) for every bundle to make; stale = it exists but was trained on another dataset, or on raw
+def bundle_jobs(args: Args) -> list[tuple[str, str, list[str]]]:
+    """(algo, bundle directory name, extra pretrain flags) of every bundle kind asked for: plain algos, and each
+    method's variant (its bundle kind + suffix, with the method's --policy and --pretrain-hp defaults)."""
+    from proto_brax.methods import get_method
+
+    jobs = [(algo, algo, []) for algo in args.algos]
+    for name in args.methods:
+        m = get_method(name)
+        extra = ["--policy", m.defaults["policy"]] if "policy" in m.defaults else []
+        for k, v in sorted(m.defaults.get("pretrain_hp", {}).items()):
+            extra += ["--hp", k, f"{v:g}"]
+        jobs.append((m.bundles[0], m.bundles[0] + m.bundle_suffix, extra))
+    return jobs
+
+
+def pending(args: Args) -> list[tuple[str, tuple[str, str, list[str]], bool]]:
+    """(dataset, job, stale) for every bundle to make; stale = it exists but was trained on another dataset, or on raw
     rewards (made before bundles recorded their reward transform)."""
     out = []
     for env in args.envs:
         for kind in args.kinds:
-            for algo in args.algos:
-                meta = ROOT / "checkpoints" / "pretrained" / f"{env}-{kind}" / algo / "metadata.json"
+            for job in bundle_jobs(args):
+                meta = ROOT / "checkpoints" / "pretrained" / f"{env}-{kind}" / job[1] / "metadata.json"
                 if not meta.exists():
-                    out.append((f"{env}-{kind}", algo, False))
+                    out.append((f"{env}-{kind}", job, False))
                     continue
                 m = json.loads(meta.read_text())
                 h = cached_hash(f"{env}-{kind}")
                 # Bundles from before the reward transform trained on raw rewards: the finetuning α then means less.
                 if (h and m["dataset_content_hash"] != h) or "reward_scale" not in m:
-                    out.append((f"{env}-{kind}", algo, True))
+                    out.append((f"{env}-{kind}", job, True))
     return out
 
 
@@ -77,7 +96,7 @@ def main(args: Args) -> None:
     args.logs.mkdir(parents=True, exist_ok=True)
     sys.path.insert(0, str(ROOT))
     queue = pending(args)
-    print(f"{len(queue)} bundle(s) to make: {queue}", flush=True)
+    print(f"{len(queue)} bundle(s) to make: {[(d, job[1], stale) for d, job, stale in queue]}", flush=True)
     from proto_brax.datasets import dataset_path
 
     for dataset in dict.fromkeys(d for d, _, _ in queue):  # build missing datasets first (deterministic, cached)
@@ -88,16 +107,18 @@ def main(args: Args) -> None:
     while queue or running:
         for core in range(args.workers):
             if core not in running and queue:
-                dataset, algo, stale = queue.pop(0)
+                dataset, (algo, name, extra), stale = queue.pop(0)
                 cpu = args.cores[core] if core < len(args.cores) else core % (os.cpu_count() or 1)
                 cmd = ["taskset", "-c", str(cpu), sys.executable, "-m", "proto_brax.pretrain",
                        "--dataset", dataset, "--algo", algo, "--steps", str(args.steps),
-                       "--seeds", *map(str, args.seeds), *(["--overwrite"] if stale else [])]
-                log = open(args.logs / f"{dataset}-{algo}.log", "a")
+                       "--seeds", *map(str, args.seeds), *extra,
+                       "--out", str(ROOT / "checkpoints" / "pretrained" / dataset / name),
+                       *(["--overwrite"] if stale else [])]
+                log = open(args.logs / f"{dataset}-{name}.log", "a")
                 env = {**os.environ, "XLA_FLAGS": SINGLE_THREAD}
                 running[core] = (subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env=env),
-                                 (dataset, algo), time.time())
-                print(f"[{time.strftime('%H:%M:%S')}] core {core}: {dataset} {algo}", flush=True)
+                                 (dataset, name), time.time())
+                print(f"[{time.strftime('%H:%M:%S')}] core {core}: {dataset} {name}", flush=True)
         time.sleep(5)
         for core, (p, job, t0) in list(running.items()):
             if p.poll() is not None:

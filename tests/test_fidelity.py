@@ -197,3 +197,16 @@ def test_proto_official_pretrains_and_finetunes_end_to_end(tmp_path):
     assert meta["net"]["policy"] == "gaussian"
     assert meta["hparams"]["eql_weight_scale"] == 1.0 and meta["hparams"]["eql_z_clip"] == 7.0
     assert cfg["finetune"]["fidelity"]["carry_critic_state"] is True
+
+
+def test_pretrain_all_makes_a_methods_variant_bundle_with_its_settings():
+    """benchmarks/pretrain_all.py --methods proto-official queues eql-official bundles with the method's policy and
+    pretraining hyper-parameters (the one place they are written is the method)."""
+    from test_results_md import load_module
+
+    pa = load_module("pretrain_all")
+    args = pa.Args(algos=(), methods=("proto-official",), envs=("point",), kinds=("medium", "random"))
+    (algo, name, extra), = pa.bundle_jobs(args)
+    assert (algo, name) == ("eql", "eql-official")
+    assert extra == ["--policy", "gaussian", "--hp", "eql_weight_scale", "1", "--hp", "eql_z_clip", "7"]
+    assert [d for d, _, _ in pa.pending(args)] == ["point-medium", "point-random"]  # (no point bundles committed)
