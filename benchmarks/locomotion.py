@@ -114,8 +114,9 @@ def missing_bundle(dataset: str, method: str) -> str | None:
     kind = m.bundles[0]
     if (ROOT / "checkpoints" / "pretrained" / dataset / (kind + m.bundle_suffix) / "metadata.json").exists():
         return None
-    extra = "".join([f" --policy {m.defaults['policy']}" if "policy" in m.defaults else ""]
-                    + [f" --hp {k} {v:g}" for k, v in sorted(m.defaults.get("pretrain_hp", {}).items())])
+    hp = sorted(m.defaults.get("pretrain_hp", {}).items())
+    extra = (f" --policy {m.defaults['policy']}" if "policy" in m.defaults else "") + (
+        " --hp " + " ".join(f"{k} {v:g}" for k, v in hp) if hp else "")  # one --hp: a repeated one replaces
     return (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}{extra} --out "
             f"checkpoints/pretrained/{dataset}/{kind + m.bundle_suffix}")
 

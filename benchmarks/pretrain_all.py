@@ -67,8 +67,9 @@ def bundle_jobs(args: Args) -> list[tuple[str, str, list[str]]]:
     for name in args.methods:
         m = get_method(name)
         extra = ["--policy", m.defaults["policy"]] if "policy" in m.defaults else []
-        for k, v in sorted(m.defaults.get("pretrain_hp", {}).items()):
-            extra += ["--hp", k, f"{v:g}"]
+        hp = sorted(m.defaults.get("pretrain_hp", {}).items())
+        if hp:  # one --hp with every pair (a repeated --hp replaces the earlier one)
+            extra += ["--hp", *(x for k, v in hp for x in (k, f"{v:g}"))]
         jobs.append((m.bundles[0], m.bundles[0] + m.bundle_suffix, extra))
     return jobs
 

@@ -273,8 +273,9 @@ def rebuild_command(path: str | os.PathLike, meta: dict[str, Any]) -> str:
 
         default = {k: float(v) for k, v in dataclasses.asdict(
             OfflineHParams.create(**ALGO_HP.get(meta.get("algo"), {}))).items()}
-        hp = "".join(f" --hp {k} {v:.6g}" for k, v in sorted((meta.get("hparams") or {}).items())
-                     if k in default and not np.isclose(v, default[k], rtol=1e-6))
+        pairs = [f"{k} {v:.6g}" for k, v in sorted((meta.get("hparams") or {}).items())
+                 if k in default and not np.isclose(v, default[k], rtol=1e-6)]
+        hp = f" --hp {' '.join(pairs)}" if pairs else ""  # one --hp: a repeated --hp replaces the earlier one
     except Exception:  # (a message helper: never fail because of it)
         pass
     policy = (meta.get("net") or {}).get("policy", "tanh_gaussian")

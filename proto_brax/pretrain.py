@@ -10,6 +10,7 @@ network config, steps, seeds, offline evaluation (return and normalized score) a
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from pathlib import Path
 from typing import Literal
@@ -160,9 +161,14 @@ def pretrain(args: PretrainArgs) -> dict:
 def main(argv: list[str] | None = None) -> None:
     import tyro
 
+    from proto_brax.startup import refuse_repeated
     from proto_brax.sweep import exit_on_input_error
 
-    exit_on_input_error(lambda: pretrain(tyro.cli(PretrainArgs, args=argv)), argv)
+    def run():
+        refuse_repeated(list(sys.argv[1:] if argv is None else argv), ("--hp",))
+        return pretrain(tyro.cli(PretrainArgs, args=argv))
+
+    exit_on_input_error(run, argv)
 
 
 if __name__ == "__main__":

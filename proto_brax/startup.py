@@ -18,6 +18,15 @@ KNOWN_LINES = ("Failed to import warp:", "Failed to import mujoco_warp:")
 BRAX_UNMAINTAINED = "Brax System, piplines and environments are not actively being maintained"
 
 
+def refuse_repeated(argv: list[str], flags: tuple[str, ...]) -> None:
+    """A dict flag (``--hp k v``) given twice keeps only its last occurrence (tyro replaces, it does not merge):
+    refuse it, naming the fix, instead of silently dropping the earlier pairs."""
+    for flag in flags:
+        if argv.count(flag) > 1:
+            raise ValueError(f"{flag} is given {argv.count(flag)} times, and only the last would count: give every "
+                             f"pair after one {flag} (e.g. {flag} name1 value1 name2 value2).")
+
+
 def quiet_start() -> None:
     warnings.filterwarnings("ignore", message=BRAX_UNMAINTAINED, category=UserWarning)
     buf = io.StringIO()

@@ -246,8 +246,9 @@ def resolve_checkpoint(args: SweepArgs) -> Path | None:
             return auto
         if args.pretrain is None:  # (with --pretrain the sweep makes its own bundle)
             rel = auto.relative_to(REPO_ROOT)
-            extra = "".join([f" --policy {args.policy}" if args.policy != "tanh_gaussian" else ""]
-                            + [f" --hp {k} {v:g}" for k, v in sorted(args.pretrain_hp.items())])
+            extra = (f" --policy {args.policy}" if args.policy != "tanh_gaussian" else "") + (
+                " --hp " + " ".join(f"{k} {v:g}" for k, v in sorted(args.pretrain_hp.items())) if args.pretrain_hp
+                else "")  # one --hp with every pair: a repeated --hp replaces the earlier one
             fix = (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}{extra} --out {rel}, or add "
                    f"--pretrain {kind}, or pass --checkpoint PATH")
             if method.requires_bundle:
@@ -819,6 +820,9 @@ def parse_args(argv: list[str] | None = None) -> SweepArgs:
     import tyro
 
     argv = list(sys.argv[1:] if argv is None else argv)
+    from proto_brax.startup import refuse_repeated
+
+    refuse_repeated(argv, ("--hp", "--pretrain-hp"))
     defaults = SweepArgs()
     if "--preset" in argv:
         i = argv.index("--preset")

@@ -208,5 +208,5 @@ def test_pretrain_all_makes_a_methods_variant_bundle_with_its_settings():
     args = pa.Args(algos=(), methods=("proto-official",), envs=("point",), kinds=("medium", "random"))
     (algo, name, extra), = pa.bundle_jobs(args)
     assert (algo, name) == ("eql", "eql-official")
-    assert extra == ["--policy", "gaussian", "--hp", "eql_weight_scale", "1", "--hp", "eql_z_clip", "7"]
+    assert extra == ["--policy", "gaussian", "--hp", "eql_weight_scale", "1", "eql_z_clip", "7"]
     assert [d for d, _, _ in pa.pending(args)] == ["point-medium", "point-random"]  # (no point bundles committed)

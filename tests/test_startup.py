@@ -28,3 +28,17 @@ def test_quiet_start_filters_only_the_known_noise():
     quiet = _run("from proto_brax.startup import quiet_start; quiet_start()")
     assert "warp" not in quiet and "not actively being maintained" not in quiet
     assert "a real warning" in quiet and "done" in quiet
+
+
+def test_a_repeated_dict_flag_is_refused_not_silently_dropped():
+    """tyro keeps only the last of two --hp flags: the CLIs refuse the repetition, naming the fix; one --hp with
+    several pairs still parses to all of them."""
+    import pytest
+
+    from proto_brax import sweep
+
+    with pytest.raises(ValueError, match="--hp is given 2 times"):
+        sweep.parse_args(["--hp", "lr_actor", "1e-4", "--hp", "gamma", "0.9"])
+    with pytest.raises(ValueError, match="--pretrain-hp is given 2 times"):
+        sweep.parse_args(["--pretrain-hp", "alpha", "1", "--pretrain-hp", "eql_z_clip", "7"])
+    assert sweep.parse_args(["--hp", "lr_actor", "1e-4", "gamma", "0.9"]).hp == {"lr_actor": 1e-4, "gamma": 0.9}
