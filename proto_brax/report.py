@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import tyro
 
-from proto_brax.files import atomic_write, nan_for_null
+from proto_brax.files import atomic_write, nan_for_null, strict_json
 
 GRID_AXES = ("tau", "eta", "alpha0")
 REQUIRED_KEYS = ("chunk", "run", "seed", "tau", "eta", "alpha0", "step", "eval_return", "normalized_score",
@@ -452,21 +452,6 @@ def plot_cost(costs: list[dict], path: Path) -> None:
 # -------------------------------------------------------------------------------------------------------- report
 
 
-def _clean(x):
-    """NaN/inf -> None, numpy -> Python, recursively (report.json is strict JSON)."""
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _clean(x.tolist())
-    if isinstance(x, (np.generic,)):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
-
-
 def make_report(dirs, out: str | os.PathLike | None = None, verbose: bool = True) -> dict:
     """Load the sweep directories, write the PNGs and report.json into ``out``; returns the report dict."""
     dirs = [Path(d) for d in dirs]
@@ -517,7 +502,7 @@ def make_report(dirs, out: str | os.PathLike | None = None, verbose: bool = True
         "notes": notes + ([agg["note"]] if agg["note"] else []),
         "files": files + ["report.json"],
     }
-    report = _clean(report)
+    report = strict_json(report)  # report.json is strict JSON
     from proto_brax.checkpoints import write_json_atomic
 
     write_json_atomic(out / "report.json", report)
