@@ -42,7 +42,7 @@ sys.path.insert(0, str(ROOT))
 
 from proto_brax.envs import single_thread_xla_flags  # noqa: E402
 from proto_brax.files import atomic_write, copy_atomic, nan_for_null  # noqa: E402
-from proto_brax.methods import METHODS, Method  # noqa: E402
+from proto_brax.methods import METHODS, Method, pretrain_flags  # noqa: E402
 from proto_brax.sweep import PRESETS  # noqa: E402
 
 DATASETS = tuple(f"{env}-{kind}" for env in ("hopper", "walker2d", "halfcheetah", "ant")
@@ -114,9 +114,8 @@ def missing_bundle(dataset: str, method: str) -> str | None:
     kind = m.bundles[0]
     if (ROOT / "checkpoints" / "pretrained" / dataset / (kind + m.bundle_suffix) / "metadata.json").exists():
         return None
-    hp = sorted(m.defaults.get("pretrain_hp", {}).items())
-    extra = (f" --policy {m.defaults['policy']}" if "policy" in m.defaults else "") + (
-        " --hp " + " ".join(f"{k} {v:g}" for k, v in hp) if hp else "")  # one --hp: a repeated one replaces
+    extra = "".join(f" {f}" for f in pretrain_flags(m.defaults.get("policy", "tanh_gaussian"),
+                                                     m.defaults.get("pretrain_hp")))
     return (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}{extra} --out "
             f"checkpoints/pretrained/{dataset}/{kind + m.bundle_suffix}")
 

@@ -61,15 +61,12 @@ def cached_hash(dataset: str) -> str | None:
 def bundle_jobs(args: Args) -> list[tuple[str, str, list[str]]]:
     """(algo, bundle directory name, extra pretrain flags) of every bundle kind asked for: plain algos, and each
     method's variant (its bundle kind + suffix, with the method's --policy and --pretrain-hp defaults)."""
-    from proto_brax.methods import get_method
+    from proto_brax.methods import get_method, pretrain_flags
 
     jobs = [(algo, algo, []) for algo in args.algos]
     for name in args.methods:
         m = get_method(name)
-        extra = ["--policy", m.defaults["policy"]] if "policy" in m.defaults else []
-        hp = sorted(m.defaults.get("pretrain_hp", {}).items())
-        if hp:  # one --hp with every pair (a repeated --hp replaces the earlier one)
-            extra += ["--hp", *(x for k, v in hp for x in (k, f"{v:g}"))]
+        extra = pretrain_flags(m.defaults.get("policy", "tanh_gaussian"), m.defaults.get("pretrain_hp"))
         jobs.append((m.bundles[0], m.bundles[0] + m.bundle_suffix, extra))
     return jobs
 

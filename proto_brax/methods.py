@@ -101,6 +101,14 @@ METHODS: dict[str, Method] = {m.name: m for m in (
 )}
 
 
+def pretrain_flags(policy: str = "tanh_gaussian", pretrain_hp: dict | None = None) -> list[str]:
+    """The ``python -m proto_brax.pretrain`` flags of a bundle variant: ``--policy`` when not the default, and every
+    hyper-parameter pair after ONE ``--hp`` (a repeated ``--hp`` would replace the earlier one)."""
+    flags = ["--policy", policy] if policy != "tanh_gaussian" else []
+    hp = sorted((pretrain_hp or {}).items())
+    return flags + (["--hp", *(x for k, v in hp for x in (k, f"{v:g}"))] if hp else [])
+
+
 def get_method(name: str) -> Method:
     if name not in METHODS:
         raise ValueError(f"Unknown method {name!r}: choose one of {sorted(METHODS)}.")

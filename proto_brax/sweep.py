@@ -24,7 +24,7 @@ import numpy as np
 
 from proto_brax.fidelity import Fidelity
 from proto_brax.files import append_once, read_jsonl, strict_json, write_text_atomic
-from proto_brax.methods import METHODS, describe, get_method
+from proto_brax.methods import METHODS, describe, get_method, pretrain_flags
 
 GRID_AXES = ("tau", "eta", "alpha0")
 MethodName = Literal[tuple(METHODS)]  # the one list of method names is proto_brax.methods.METHODS
@@ -246,9 +246,7 @@ def resolve_checkpoint(args: SweepArgs) -> Path | None:
             return auto
         if args.pretrain is None:  # (with --pretrain the sweep makes its own bundle)
             rel = auto.relative_to(REPO_ROOT)
-            extra = (f" --policy {args.policy}" if args.policy != "tanh_gaussian" else "") + (
-                " --hp " + " ".join(f"{k} {v:g}" for k, v in sorted(args.pretrain_hp.items())) if args.pretrain_hp
-                else "")  # one --hp with every pair: a repeated --hp replaces the earlier one
+            extra = "".join(f" {f}" for f in pretrain_flags(args.policy, args.pretrain_hp))
             fix = (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}{extra} --out {rel}, or add "
                    f"--pretrain {kind}, or pass --checkpoint PATH")
             if method.requires_bundle:
