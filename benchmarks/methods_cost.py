@@ -29,10 +29,10 @@ import tyro
 from throughput import Case, aot, log, run_interleaved, synthetic_transitions, versions, write_json_atomic
 
 from proto_brax import envs, sweep
+from proto_brax.agents.registry import METHODS, agent
 from proto_brax.config import HParams
 from proto_brax.data.dataset import with_returns_to_go
-from proto_brax.methods import METHODS
-from proto_brax.train.online import ALGORITHMS, make_finetune
+from proto_brax.train.online import make_finetune
 
 
 @dataclasses.dataclass
@@ -71,7 +71,7 @@ def main(args: Args) -> dict:
         env = envs.make_env(cfg.env, cfg.backend)
         data = None if cfg.sampling == "online" else synthetic_transitions(
             jax.random.PRNGKey(0), rows, env.observation_size, env.action_size)
-        if data is not None and ALGORITHMS[cfg.algo].mc_returns:
+        if data is not None and agent(cfg.algo).mc_returns:
             data = with_returns_to_go(jax.device_get(data), 0.99)
         hp = HParams.create(**g["hp"])
         state = jax.jit(ft.init)(hp, jax.random.PRNGKey(1), None, data)

@@ -25,8 +25,8 @@ import tyro
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from proto_brax.agents.registry import METHODS  # noqa: E402
 from proto_brax.checkpoints import write_json_atomic  # noqa: E402
-from proto_brax.methods import METHODS  # noqa: E402
 
 
 @dataclasses.dataclass

@@ -61,7 +61,7 @@ def cached_hash(dataset: str) -> str | None:
 def bundle_jobs(args: Args) -> list[tuple[str, str, list[str]]]:
     """(algo, bundle directory name, extra pretrain flags) of every bundle kind asked for: plain algos, and each
     method's variant (its bundle kind + suffix, with the method's --policy and --pretrain-hp defaults)."""
-    from proto_brax.methods import get_method, pretrain_flags
+    from proto_brax.agents.registry import get_method, pretrain_flags
 
     jobs = [(algo, algo, []) for algo in args.algos]
     for name in args.methods:

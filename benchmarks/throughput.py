@@ -49,7 +49,8 @@ import tyro
 from jax import lax
 
 from proto_brax import envs
-from proto_brax.algorithms.learner import init_learner
+from proto_brax.agents.learner import init_learner
+from proto_brax.agents.registry import agent
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.data.replay import replay_init, replay_insert, replay_sample
@@ -66,7 +67,7 @@ from proto_brax.train.grid import (
     shard,
     use_host_devices,
 )
-from proto_brax.train.online import ALGORITHMS, make_finetune
+from proto_brax.train.online import make_finetune
 
 GOALS = {
     "proto_vs_sac_time_ratio": ("<=", 1.12),
@@ -212,7 +213,7 @@ def make_update_fns(cfg: FinetuneConfig, nets, n_updates: int):
     def one(learner, buffer, dataset, key, alpha, hp, i):
         k_sample, k_upd = jax.random.split(key)
         batch = replay_sample(k_sample, buffer, dataset, cfg.batch_size, cfg.sampling, cfg.offline_fraction)
-        return ALGORITHMS[cfg.algo].update(learner, batch, k_upd, alpha, hp, nets, cfg, i)
+        return agent(cfg.algo).update(learner, batch, k_upd, alpha, hp, nets, cfg, i)
 
     def single(learner, buffer, dataset, key, alpha, hp):
         return one(learner, buffer, dataset, key, alpha, hp, jnp.zeros((), jnp.int32))
@@ -231,7 +232,7 @@ def update_setup(cfg: FinetuneConfig, sizes: Sizes, key: jax.Array):
     nets = make_networks(cfg.net, act, deterministic=cfg.algo == "td3")
     hp = HParams.create()
     k_l, k_d, k_b = jax.random.split(key, 3)
-    learner = init_learner(k_l, nets, ALGORITHMS[cfg.algo], hp, obs, act, None)
+    learner = init_learner(k_l, nets, agent(cfg.algo), hp, obs, act, None)
     dataset = synthetic_transitions(k_d, sizes.dataset_rows, obs, act)
     buffer = replay_insert(replay_init(2 * sizes.buffer_rows, obs, act),
                            synthetic_transitions(k_b, sizes.buffer_rows, obs, act))

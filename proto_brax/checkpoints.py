@@ -268,7 +268,7 @@ def rebuild_command(path: str | os.PathLike, meta: dict[str, Any]) -> str:
     seeds = " ".join(str(s) for s in meta.get("seeds", ()))
     hp = ""
     try:  # the offline hyper-parameters that differ from the algorithm's defaults
-        from proto_brax.algorithms.insample import OfflineHParams
+        from proto_brax.agents.insample import OfflineHParams
         from proto_brax.pretrain import ALGO_HP
 
         default = {k: float(v) for k, v in dataclasses.asdict(
@@ -286,7 +286,7 @@ def rebuild_command(path: str | os.PathLike, meta: dict[str, Any]) -> str:
 
 def bundle_template(meta: dict[str, Any]):
     """An OfflineState of the bundle's shapes (leading seed axis), built from its metadata alone."""
-    from proto_brax.algorithms.insample import OfflineHParams, init_offline_state
+    from proto_brax.agents.insample import OfflineHParams, init_offline_state
     from proto_brax.networks import NetworkConfig, make_networks
 
     net = NetworkConfig(**{**meta["net"], "hidden": tuple(meta["net"]["hidden"])})

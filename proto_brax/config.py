@@ -16,11 +16,10 @@ import numpy as np
 from flax import struct
 
 from proto_brax import envs
+from proto_brax.agents.registry import AGENTS
 from proto_brax.data.replay import SAMPLING_MODES
 from proto_brax.fidelity import Fidelity
 from proto_brax.networks import NetworkConfig
-
-ALGOS = ("sac", "td3", "iql", "awac", "pex", "cql", "calql", "off2on")
 
 
 @struct.dataclass
@@ -46,7 +45,7 @@ class HParams:
     policy_noise: jax.Array = 0.2  # TD3 target-policy smoothing noise
     noise_clip: jax.Array = 0.5
     expl_noise: jax.Array = 0.1  # TD3 exploration noise σ
-    # Baselines (proto_brax.methods): IQL / PEX (IQL's MuJoCo values, Kostrikov et al. 2022), AWAC (CORL's defaults).
+    # Baselines (agents.registry): IQL / PEX (IQL's MuJoCo values, Kostrikov et al. 2022), AWAC (CORL's defaults).
     expectile: jax.Array = 0.7  # IQL / PEX expectile of the value regression
     awr_temperature: jax.Array = 3.0  # IQL / PEX inverse temperature β of the extraction weight exp(β (Q − V))
     awr_weight_max: jax.Array = 100.0  # extraction weights are clipped to [0, awr_weight_max] (IQL, PEX, AWAC)
@@ -98,7 +97,7 @@ class FinetuneConfig:
 
     env: str = "hopper"  # registered task name (proto_brax.envs.REGISTRY)
     backend: str | None = None  # brax backend; None = the env's measured default
-    algo: Literal["sac", "td3", "iql", "awac", "pex", "cql", "calql", "off2on"] = "sac"  # online update (methods.py)
+    algo: str = "sac"  # the online update: an agent of proto_brax.agents.registry.AGENTS
     net: NetworkConfig = NetworkConfig()
     steps: int = 100_000  # online env steps per run
     eval_every: int = 5_000  # env steps per chunk; one evaluation at the end of each chunk
@@ -127,8 +126,8 @@ class FinetuneConfig:
         envs.get_spec(self.env)
         if self.backend is not None:
             envs.check_backend(self.backend)
-        if self.algo not in ALGOS:
-            raise ValueError(f"Unknown algo {self.algo!r}: choose one of {list(ALGOS)}.")
+        if self.algo not in AGENTS:
+            raise ValueError(f"Unknown algo {self.algo!r}: choose one of {list(AGENTS)}.")
         if self.sampling not in SAMPLING_MODES:
             raise ValueError(f"Unknown sampling {self.sampling!r}: choose one of {list(SAMPLING_MODES)}.")
         for name in ("steps", "eval_every", "eval_episodes", "num_envs", "batch_size", "updates_per_step",

@@ -303,7 +303,7 @@ def make_cloned(name: str, size: int, seed: int = 0, num_envs: int = 100, behavi
     import jax.numpy as jnp
 
     from proto_brax import envs
-    from proto_brax.algorithms.insample import OfflineHParams
+    from proto_brax.agents.insample import OfflineHParams
     from proto_brax.data import generate as g
     from proto_brax.data.dataset import content_hash, episode_return_stats
     from proto_brax.train.offline import PretrainConfig, make_pretrain, run_pretrain

@@ -17,6 +17,8 @@ from typing import Literal
 
 import numpy as np
 
+from proto_brax.agents.registry import PRETRAIN_ALGOS
+
 
 @dataclasses.dataclass
 class PretrainArgs:
@@ -26,7 +28,7 @@ class PretrainArgs:
     """Registered dataset name (e.g. hopper-medium) or a file (.npz ours, .hdf5 D4RL)."""
     dataset_size: int | None = None
     """Transitions of a registered dataset (default 10⁶), as cached by `python -m proto_brax.datasets make`."""
-    algo: Literal["eql", "sql", "iql", "bc", "cql", "calql"] = "eql"
+    algo: Literal[PRETRAIN_ALGOS] = "eql"
     """eql / sql (IVR in-sample), iql, bc (BC actor + FQE critic, for PROTO+BC and AWAC), cql, or calql (CQL with
     Cal-QL's Monte-Carlo calibration; policy learning rate 1e-4 unless --hp lr_actor says otherwise)."""
     env: str | None = None
@@ -50,7 +52,7 @@ class PretrainArgs:
     reward_shift: float | None = None
     """Default: the env's (AntMaze −1, as the reference code; else 0)."""
     hp: dict[str, float] = dataclasses.field(default_factory=dict)
-    """Offline hyper-parameters, e.g. --hp alpha 2.0 (see proto_brax.algorithms.insample.OfflineHParams)."""
+    """Offline hyper-parameters, e.g. --hp alpha 2.0 (see proto_brax.agents.insample.OfflineHParams)."""
     out: Path | None = None
     """Bundle directory; default checkpoints/pretrained/<dataset>/<algo>."""
     overwrite: bool = False
@@ -87,7 +89,7 @@ def check_out(out: Path, overwrite: bool) -> None:
 
 def pretrain(args: PretrainArgs) -> dict:
     from proto_brax import __version__, checkpoints, envs
-    from proto_brax.algorithms.insample import OfflineHParams
+    from proto_brax.agents.insample import OfflineHParams
     from proto_brax.data.dataset import content_hash, transform_rewards, validate_for_env, with_returns_to_go
     from proto_brax.datasets import load_dataset
     from proto_brax.networks import NetworkConfig

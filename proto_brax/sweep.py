@@ -22,12 +22,12 @@ from typing import Literal
 
 import numpy as np
 
+from proto_brax.agents.registry import METHODS, PRETRAIN_ALGOS, describe, get_method, pretrain_flags
 from proto_brax.fidelity import Fidelity
 from proto_brax.files import append_once, read_jsonl, strict_json, write_text_atomic
-from proto_brax.methods import METHODS, describe, get_method, pretrain_flags
 
 GRID_AXES = ("tau", "eta", "alpha0")
-MethodName = Literal[tuple(METHODS)]  # the one list of method names is proto_brax.methods.METHODS
+MethodName = Literal[tuple(METHODS)]  # the one list of method names is proto_brax.agents.registry.METHODS
 
 
 @dataclasses.dataclass
@@ -92,13 +92,13 @@ class SweepArgs:
     checkpoints/pretrained/DATASET/KIND for the method's bundle kind (eql for PROTO; iql for iql/pex; bc for proto-bc
     and awac) — PROTO falls back to a random π₀ when there is none, the baselines stop; 'none' = a random π₀. Bundle
     seeds map onto run seeds by value (else seed mod the bundle's seed count); a one-seed bundle is broadcast."""
-    pretrain: Literal["eql", "sql", "iql", "bc", "cql", "calql"] | None = None
+    pretrain: Literal[PRETRAIN_ALGOS] | None = None
     """Pretrain on --dataset first (one bundle seed per sweep seed, saved in OUT/pretrained), then finetune from it."""
     pretrain_steps: int = 100_000
     """Gradient steps of --pretrain."""
     pretrain_hp: dict[str, float] = dataclasses.field(default_factory=dict)
     """Offline hyper-parameters of --pretrain, e.g. --pretrain-hp alpha 0.5 (AntMaze's EQL temperature; see
-    proto_brax.algorithms.insample.OfflineHParams)."""
+    proto_brax.agents.insample.OfflineHParams)."""
     hp: dict[str, float] = dataclasses.field(default_factory=dict)
     """Other traced hyper-parameters, e.g. --hp lr_actor 1e-4 gamma 0.995 (see proto_brax.config.HParams)."""
     reward_scale: float | None = None
@@ -281,9 +281,9 @@ def _load_checkpoint(path: Path | None, cfg, grid, method_name: str = "proto-sac
     import jax.numpy as jnp
 
     from proto_brax import checkpoints
-    from proto_brax.algorithms.learner import Pretrained
+    from proto_brax.agents.learner import Pretrained
+    from proto_brax.agents.registry import agent
     from proto_brax.envs import make_env
-    from proto_brax.train.online import ALGORITHMS
 
     env = make_env(cfg.env, cfg.backend)
     meta = checkpoints.read_metadata(path)
@@ -294,10 +294,10 @@ def _load_checkpoint(path: Path | None, cfg, grid, method_name: str = "proto-sac
                          f"but {path} holds {meta.get('algo')!r}: pass a matching --checkpoint or --pretrain "
                          f"{method.bundles[0]}.")
     state, meta = checkpoints.load_bundle(path)
-    value = state.value if ALGORITHMS[cfg.algo].value else None
-    if ALGORITHMS[cfg.algo].value and value is None:
+    value = state.value if agent(cfg.algo).value else None
+    if agent(cfg.algo).value and value is None:
         raise ValueError(f"--algo {method_name} needs a bundle with a value network (IQL); {path} has none.")
-    log_alpha = state.log_alpha_sac if ALGORITHMS[cfg.algo].temperature else None  # only CQL bundles hold one
+    log_alpha = state.log_alpha_sac if agent(cfg.algo).temperature else None  # only CQL bundles hold one
     carry = cfg.fidelity.carry_critic_state  # the critic's Adam state and target critic (FIDELITY.md row 5)
     pre = Pretrained(actor=state.actor, critic=state.critic, value=value, log_alpha_sac=log_alpha,
                      critic_target=state.critic_target if carry else None,
@@ -613,15 +613,16 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     dataset, dmeta = _load_dataset(dataset_name, args.dataset_size)  # non-finite values are refused here
     if bmeta is not None and dataset_name is not None:
         validate_bundle_dataset(bmeta, dataset_name, (dmeta or {}).get("content_hash"))
+    from proto_brax.agents.registry import agent
     from proto_brax.data.dataset import transform_rewards, validate_for_env, with_returns_to_go
-    from proto_brax.train.online import ALGORITHMS, make_finetune
+    from proto_brax.train.online import make_finetune
 
     if dataset is not None:  # every check of the data before --out is touched
         from proto_brax.envs import make_env
 
         env = make_env(cfg.env, cfg.backend)
         validate_for_env(dataset, env.observation_size, env.action_size, str(dataset_name), env_name=cfg.env)
-        if ALGORITHMS[cfg.algo].mc_returns and np.unique(np.asarray(grid.hparams.gamma)).size != 1:
+        if agent(cfg.algo).mc_returns and np.unique(np.asarray(grid.hparams.gamma)).size != 1:
             raise ValueError(f"--algo {args.algo} computes the dataset's returns-to-go once: use one gamma.")
     if args.pretrain is None:
         cfg = dataclasses.replace(cfg, **reward_transform(args, bmeta, dataset))
@@ -668,7 +669,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
 
     if dataset is not None:
         dataset = transform_rewards(dataset, cfg.reward_scale, cfg.reward_shift)
-        if ALGORITHMS[cfg.algo].mc_returns:  # Cal-QL's calibration bound: returns-to-go with the runs' γ
+        if agent(cfg.algo).mc_returns:  # Cal-QL's calibration bound: returns-to-go with the runs' γ
             dataset = with_returns_to_go(dataset, float(np.asarray(grid.hparams.gamma)[0]))
         dataset = jax.tree.map(jax.numpy.asarray, dataset)
     mesh = grid_mesh()

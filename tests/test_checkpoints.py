@@ -12,7 +12,7 @@ import pytest
 from test_engine import SCRATCH, TINY, finetune_fn, point_dataset
 
 from proto_brax import checkpoints, pretrain, sweep
-from proto_brax.algorithms.learner import Pretrained
+from proto_brax.agents.learner import Pretrained
 from proto_brax.data.dataset import save_npz
 from proto_brax.networks import NetworkConfig
 

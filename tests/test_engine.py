@@ -12,8 +12,9 @@ import optax
 import pytest
 
 from proto_brax import envs
-from proto_brax.algorithms.bc import bc_update
-from proto_brax.algorithms.learner import Pretrained, adam
+from proto_brax.agents.bc import bc_update
+from proto_brax.agents.common import adam
+from proto_brax.agents.learner import Pretrained
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.data.generate import collect, flatten_env_major, uniform_policy

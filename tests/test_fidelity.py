@@ -14,9 +14,10 @@ import reference as ref
 from helpers import perturb
 from test_engine import SCRATCH, TINY, point_dataset
 
-from proto_brax.algorithms import sac
-from proto_brax.algorithms.insample import weighted_log_likelihood
-from proto_brax.algorithms.learner import Pretrained, init_learner
+from proto_brax.agents import sac
+from proto_brax.agents.insample import weighted_log_likelihood
+from proto_brax.agents.learner import Pretrained, init_learner
+from proto_brax.agents.registry import agent
 from proto_brax.config import HParams
 from proto_brax.data.replay import replay_sample
 from proto_brax.fidelity import Fidelity
@@ -93,7 +94,7 @@ OBS = 4  # the point task's observation size
 def _gaussian_learner(seed=0):
     nets = make_networks(GNET, 2)
     hp = HParams.create(alpha_sac_init=0.2, gamma=0.9)
-    lrn = init_learner(jax.random.PRNGKey(seed), nets, online.ALGORITHMS["sac"], hp, OBS, 2, None)
+    lrn = init_learner(jax.random.PRNGKey(seed), nets, agent("sac"), hp, OBS, 2, None)
     # Distinct networks (and a log-std away from its init of 0) so that a swapped argument cannot pass.
     lrn = lrn.replace(actor=perturb(lrn.actor, jax.random.PRNGKey(seed + 1)),
                       critic_target=perturb(lrn.critic, jax.random.PRNGKey(seed + 2)),
@@ -160,7 +161,7 @@ def test_carry_critic_state_takes_the_bundles_adam_and_target():
     hp = hp.replace(lr_critic=jnp.float32(1e-4))
     moved = jax.tree.map(lambda x: x + 0.5, lrn.critic_opt)  # moments, count and learning rate of "pretraining"
     pre = Pretrained(actor=lrn.actor, critic=lrn.critic, critic_target=lrn.critic_target, critic_opt=moved)
-    algo = online.ALGORITHMS["sac"]
+    algo = agent("sac")
     carried = init_learner(jax.random.PRNGKey(0), nets, algo, hp, OBS, 2, pre, carry_critic_state=True)
     fresh = init_learner(jax.random.PRNGKey(0), nets, algo, hp, OBS, 2, pre)
     for a, b in zip(jax.tree.leaves(carried.critic_target), jax.tree.leaves(lrn.critic_target)):

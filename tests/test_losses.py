@@ -11,13 +11,14 @@ import pytest
 import reference as ref
 from helpers import perturb
 
-from proto_brax.algorithms import regularizer, sac, td3
-from proto_brax.algorithms.learner import init_learner
+from proto_brax.agents import proto, sac, td3
+from proto_brax.agents.common import polyak, temperature_loss
+from proto_brax.agents.learner import init_learner
+from proto_brax.agents.registry import agent
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.fidelity import Fidelity
 from proto_brax.networks import NetworkConfig, make_networks, tanh_gaussian_log_prob
-from proto_brax.train.online import ALGORITHMS
 
 OBS, ACT, B = 3, 2, 5
 NET = NetworkConfig(hidden=(8, 8), critic_layer_norm=True)
@@ -27,7 +28,7 @@ def _setup(algo: str, **cfg_kw):
     cfg = FinetuneConfig(env="point", algo=algo, net=NET, **cfg_kw)
     nets = make_networks(NET, ACT, deterministic=algo == "td3")
     hp = HParams.create(alpha_sac_init=0.2, gamma=0.9)
-    lrn = init_learner(jax.random.PRNGKey(0), nets, ALGORITHMS[cfg.algo], hp, OBS, ACT, None)
+    lrn = init_learner(jax.random.PRNGKey(0), nets, agent(cfg.algo), hp, OBS, ACT, None)
     # Make every network distinct so that a swapped argument cannot pass.
     lrn = lrn.replace(
         critic_target=perturb(lrn.critic, jax.random.PRNGKey(1)),
@@ -105,7 +106,7 @@ def test_sac_actor_loss_mean_q_matches_numpy(clip):
 @pytest.mark.parametrize("form", ["log_alpha", "alpha"])
 def test_temperature_loss_forms_match_numpy(form):
     log_alpha, logp = jnp.float32(np.log(0.2)), jnp.array([0.3, -1.2, 0.8, 2.0])
-    value, grad = jax.value_and_grad(sac.temperature_loss)(log_alpha, logp, -1.0, form)
+    value, grad = jax.value_and_grad(temperature_loss)(log_alpha, logp, -1.0, form)
     np.testing.assert_allclose(float(value), ref.temperature_loss(np.log(0.2), logp, -1.0, form), rtol=1e-6)
     # d/d log α: (H − H̄) for log α, α (H − H̄) for α: the official form moves log α α-times slower.
     h_gap = float(np.mean(-np.asarray(logp)) + 1.0)
@@ -195,20 +196,20 @@ def test_td3_exploration_noise_clip():
 
 
 def test_alpha_schedule_values():
-    f = lambda t: float(regularizer.alpha_schedule(2.0, 0.9, 1e6, 0.0, t))  # noqa: E731
+    f = lambda t: float(proto.alpha_schedule(2.0, 0.9, 1e6, 0.0, t))  # noqa: E731
     assert f(0.0) == 2.0
     np.testing.assert_allclose(f(5e5), 2.0 * (1 - 0.45), rtol=1e-6)
     np.testing.assert_allclose(f(1e6), 0.2, rtol=1e-5)
     assert f(1e6 / 0.9 + 1) == 0.0  # reaches 0 at N/η and stays there
     assert f(3e6) == 0.0
-    assert float(regularizer.alpha_schedule(2.0, 0.9, 1e6, 0.5, 1e6)) == 0.5  # floor α_min
+    assert float(proto.alpha_schedule(2.0, 0.9, 1e6, 0.5, 1e6)) == 0.5  # floor α_min
 
 
 def test_polyak_tau_zero_is_bit_exact():
     old = {"w": jnp.array([0.1, -3.0, 7e-8])}
     new = {"w": jnp.array([5.0, 2.0, -1.0])}
-    np.testing.assert_array_equal(regularizer.polyak(new, old, 0.0)["w"], old["w"])
-    np.testing.assert_allclose(regularizer.polyak(new, old, 0.25)["w"], 0.25 * new["w"] + 0.75 * old["w"], rtol=1e-6)
+    np.testing.assert_array_equal(polyak(new, old, 0.0)["w"], old["w"])
+    np.testing.assert_allclose(polyak(new, old, 0.25)["w"], 0.25 * new["w"] + 0.75 * old["w"], rtol=1e-6)
 
 
 def test_kl_penalty_equals_tanh_gaussian_log_ratio():
@@ -218,7 +219,7 @@ def test_kl_penalty_equals_tanh_gaussian_log_ratio():
     u = m + jnp.exp(ls) * jax.random.normal(k[4], (4, 3))
     a = jnp.tanh(u)
     direct = tanh_gaussian_log_prob(a, m, ls) - tanh_gaussian_log_prob(a, mb, lb)
-    np.testing.assert_allclose(regularizer.kl_penalty(u, m, ls, mb, lb), direct, rtol=1e-3, atol=1e-3)
+    np.testing.assert_allclose(proto.kl_penalty(u, m, ls, mb, lb), direct, rtol=1e-3, atol=1e-3)
 
 
 def test_tanh_log_prob_is_stable_for_large_u():

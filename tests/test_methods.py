@@ -13,13 +13,15 @@ import pytest
 import reference as ref
 from helpers import perturb, random_batch
 
-from proto_brax import envs, methods, sweep
-from proto_brax.algorithms import awac, iql, pex
-from proto_brax.algorithms.learner import Pretrained, init_learner
+from proto_brax import envs, sweep
+from proto_brax.agents import awac, iql, pex
+from proto_brax.agents import registry as methods
+from proto_brax.agents.learner import Pretrained, init_learner
+from proto_brax.agents.registry import agent
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import NetworkConfig, make_networks
-from proto_brax.train.online import ALGORITHMS, make_finetune
+from proto_brax.train.online import make_finetune
 
 OBS, ACT, B = 4, 2, 6
 NET = NetworkConfig(hidden=(8, 8))
@@ -32,7 +34,7 @@ def _batch(seed=0):
 
 
 def _learner(algo: str, pretrained=None, seed=1):
-    lrn = init_learner(jax.random.PRNGKey(seed), NETS, ALGORITHMS[algo], HP, OBS, ACT, pretrained)
+    lrn = init_learner(jax.random.PRNGKey(seed), NETS, agent(algo), HP, OBS, ACT, pretrained)
     # Distinct, non-trivial parameters for every network (targets and π₀ differ from the online ones).
     fields = {f: getattr(lrn, f) for f in ("actor", "critic", "critic_target", "pi0", "value")
               if getattr(lrn, f) is not None}
@@ -73,7 +75,7 @@ def test_awac_actor_loss_matches_numpy():
 def test_pex_init_keeps_pi0_frozen_and_trains_a_fresh_policy():
     base = _learner("iql")
     pre = Pretrained(actor=base.actor, critic=base.critic, value=base.value)
-    lrn = init_learner(jax.random.PRNGKey(0), NETS, ALGORITHMS["pex"], HP, OBS, ACT, pre)
+    lrn = init_learner(jax.random.PRNGKey(0), NETS, agent("pex"), HP, OBS, ACT, pre)
     same = lambda a, b: all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))  # noqa
     assert same(lrn.pi0, pre.actor) and same(lrn.critic, pre.critic) and same(lrn.value, pre.value)
     assert not same(lrn.actor, pre.actor)  # the new policy starts from a random init
@@ -137,7 +139,7 @@ def poor_data() -> Transition:
 @functools.lru_cache(maxsize=None)
 def bundle(algo: str, steps: int = 2000) -> Pretrained:
     """An offline bundle pretrained on the poor data: a weak π₀ that online learning must improve."""
-    from proto_brax.algorithms.insample import OfflineHParams
+    from proto_brax.agents.insample import OfflineHParams
     from proto_brax.data.dataset import with_returns_to_go
     from proto_brax.train.offline import PretrainConfig, make_pretrain, run_pretrain
 
@@ -227,7 +229,7 @@ def test_bundle_kind_must_match_the_method():
 
 @pytest.mark.parametrize("calibrated", [False, True])
 def test_cql_penalty_matches_numpy(calibrated):
-    from proto_brax.algorithms import cql
+    from proto_brax.agents import cql
 
     lrn, key, n = _learner("calql"), jax.random.PRNGKey(8), 3
     batch = _batch(4).replace(mc_returns=jnp.array([0.5, -3.0, 2.0, 0.0, 10.0, -1.0]))
@@ -309,7 +311,7 @@ def test_calql_finetunes_point_and_keeps_buffer_returns_exact():
 
 
 def _off2on(n=3, rows=50):
-    from proto_brax.algorithms import off2on
+    from proto_brax.agents import off2on
 
     cfg = FinetuneConfig(env="point", net=NET, algo="off2on", ensemble_size=n, steps=64, eval_every=64)
     data = _batch(5)
@@ -380,7 +382,7 @@ def test_off2on_balanced_replay_samples_by_priority_and_updates_the_sampled_rows
 
 def test_off2on_finetunes_point_from_a_cql_ensemble():
     """Five weak CQL agents (20 pretraining steps each) → Off2On improves them online (100 steps gave 50 → 95)."""
-    from proto_brax.algorithms.insample import OfflineHParams
+    from proto_brax.agents.insample import OfflineHParams
     from proto_brax.train.offline import PretrainConfig, make_pretrain, run_pretrain
 
     pre = make_pretrain(PretrainConfig(algo="cql", env="point", net=POINT.net, steps=20, log_every=20,

@@ -12,10 +12,10 @@ import reference as ref
 from helpers import random_batch
 
 from proto_brax import envs
-from proto_brax.algorithms import eql, iql, sql
-from proto_brax.algorithms.bc import bc_loss
-from proto_brax.algorithms.fqe import fqe_loss, fqe_update
-from proto_brax.algorithms.insample import OfflineHParams, init_offline_state, q_to_v_loss, weighted_log_likelihood
+from proto_brax.agents import eql, iql, sql
+from proto_brax.agents.bc import bc_loss
+from proto_brax.agents.fqe import fqe_loss, fqe_update
+from proto_brax.agents.insample import OfflineHParams, init_offline_state, q_to_v_loss, weighted_log_likelihood
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train.offline import PretrainConfig, make_pretrain, run_pretrain

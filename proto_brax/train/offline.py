@@ -10,15 +10,15 @@ import jax.numpy as jnp
 from jax import lax
 
 from proto_brax import envs
-from proto_brax.algorithms import cql, eql, iql, sql
-from proto_brax.algorithms.fqe import bc_fqe_update
-from proto_brax.algorithms.insample import OfflineHParams, OfflineState, init_offline_state
+from proto_brax.agents import cql, eql, iql, sql
+from proto_brax.agents.fqe import bc_fqe_update
+from proto_brax.agents.insample import OfflineHParams, OfflineState, init_offline_state
+from proto_brax.agents.registry import PRETRAIN_ALGOS
 from proto_brax.config import FinetuneConfig
 from proto_brax.data.dataset import OfflineDataset
 from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train.evaluate import run_episodes
 
-OFFLINE_ALGOS = ("eql", "sql", "iql", "bc", "cql", "calql")
 VALUE_ALGOS = ("eql", "sql", "iql")  # bundles with a state-value network
 TEMPERATURE_ALGOS = ("cql", "calql")  # bundles with SAC's entropy temperature
 GAUSSIAN_POLICY_ALGOS = ("eql", "sql", "iql")  # also pretrain the official code's Gaussian policy (FIDELITY.md)
@@ -28,7 +28,7 @@ GAUSSIAN_POLICY_ALGOS = ("eql", "sql", "iql")  # also pretrain the official code
 class PretrainConfig:
     """Static pretraining configuration (paper: 10⁵ steps MuJoCo/Adroit, 2·10⁵ AntMaze; batch 256; 2×256)."""
 
-    algo: Literal["eql", "sql", "iql", "bc", "cql", "calql"] = "eql"
+    algo: Literal[PRETRAIN_ALGOS] = "eql"
     env: str = "hopper"
     net: NetworkConfig = NetworkConfig()
     steps: int = 100_000
@@ -37,8 +37,8 @@ class PretrainConfig:
     eval_episodes: int = 10
 
     def __post_init__(self):
-        if self.algo not in OFFLINE_ALGOS:
-            raise ValueError(f"Unknown pretraining algo {self.algo!r}: choose one of {list(OFFLINE_ALGOS)}.")
+        if self.algo not in PRETRAIN_ALGOS:
+            raise ValueError(f"Unknown pretraining algo {self.algo!r}: choose one of {list(PRETRAIN_ALGOS)}.")
         if self.net.policy != "tanh_gaussian" and self.algo not in GAUSSIAN_POLICY_ALGOS:
             raise ValueError(f"--policy {self.net.policy} is implemented for {list(GAUSSIAN_POLICY_ALGOS)}; "
                              f"pretrain {self.algo} with --policy tanh_gaussian.")

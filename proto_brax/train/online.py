@@ -25,18 +25,14 @@ from flax import struct
 from jax import lax
 
 from proto_brax import envs
-from proto_brax.algorithms import awac, cql, iql, off2on, pex, sac, td3
-from proto_brax.algorithms.learner import Learner, Pretrained, init_learner
-from proto_brax.algorithms.regularizer import alpha_schedule
+from proto_brax.agents import registry, td3
+from proto_brax.agents.learner import Learner, Pretrained, init_learner
+from proto_brax.agents.proto import alpha_schedule
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import OfflineDataset
 from proto_brax.data.replay import ReplayBuffer, replay_accumulate_returns, replay_init, replay_insert, replay_sample
 from proto_brax.networks import make_networks
 from proto_brax.train.evaluate import EpisodeStats, run_episode_stats
-
-# FinetuneConfig.algo -> the online update; sweep methods (proto_brax.methods) pick one and its settings.
-ALGORITHMS = {"sac": sac.ONLINE, "td3": td3.ONLINE, "iql": iql.ONLINE, "awac": awac.ONLINE, "pex": pex.ONLINE,
-              "cql": cql.ONLINE_CQL, "calql": cql.ONLINE_CALQL, "off2on": off2on.ONLINE}
 
 ACTOR_METRICS = ("actor_loss", "kl_pibar", "lambda", "entropy", "weight_mean", "log_prob")
 
@@ -65,7 +61,7 @@ class Finetune:
 def make_finetune(cfg: FinetuneConfig) -> Finetune:
     env = envs.make_env(cfg.env, cfg.backend)
     obs_size, act_size = env.observation_size, env.action_size
-    algo = ALGORITHMS[cfg.algo]
+    algo = registry.agent(cfg.algo)
     if cfg.algo == "td3" and cfg.fidelity.td3_expl_noise_clip is not None:  # a static choice inside TD3's act
         algo = dataclasses.replace(algo, act=functools.partial(td3.act, noise_clip=cfg.fidelity.td3_expl_noise_clip))
     nets = make_networks(cfg.net, act_size, deterministic=cfg.algo == "td3")

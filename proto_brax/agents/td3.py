@@ -13,9 +13,10 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from proto_brax.algorithms.learner import Learner, OnlineAlgorithm, apply_grads
-from proto_brax.algorithms.regularizer import mse_penalty, polyak
-from proto_brax.algorithms.sac import target_q
+from proto_brax.agents.common import apply_grads, polyak
+from proto_brax.agents.learner import Learner, OnlineAlgorithm
+from proto_brax.agents.proto import mse_penalty
+from proto_brax.agents.sac import target_q
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks

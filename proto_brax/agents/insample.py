@@ -14,8 +14,7 @@ import jax.numpy as jnp
 from flax import struct
 from jax import lax
 
-from proto_brax.algorithms.learner import adam, apply_grads
-from proto_brax.algorithms.regularizer import polyak
+from proto_brax.agents.common import adam, apply_grads, polyak
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks
 
@@ -35,7 +34,7 @@ class OfflineHParams:
     lr_actor: jax.Array = 3e-4
     lr_critic: jax.Array = 3e-4
     lr_value: jax.Array = 3e-4
-    # CQL / Cal-QL pretraining (proto_brax.algorithms.cql): CQL's MuJoCo values; SAC temperature as from scratch.
+    # CQL / Cal-QL pretraining (proto_brax.agents.cql): CQL's MuJoCo values; SAC temperature as from scratch.
     cql_alpha: jax.Array = 5.0
     alpha_sac_init: jax.Array = 1.0
     target_entropy_scale: jax.Array = -1.0

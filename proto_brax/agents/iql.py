@@ -8,9 +8,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from proto_brax.algorithms import sac
-from proto_brax.algorithms.insample import OfflineHParams, OfflineState, insample_update
-from proto_brax.algorithms.learner import Learner, OnlineAlgorithm
+from proto_brax.agents import sac
+from proto_brax.agents.insample import OfflineHParams, OfflineState, insample_update
+from proto_brax.agents.learner import Learner, OnlineAlgorithm
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks

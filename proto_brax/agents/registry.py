@@ -1,17 +1,42 @@
-"""The methods a sweep can run (``python -m proto_brax.sweep --algo NAME``): PROTO, its named special cases and the
-PROTO paper's baselines, each an online update of the engine (``FinetuneConfig.algo``) plus its settings.
+"""The one list of agents and methods.
 
-Every method runs in the same jitted, vmapped loop and is logged and reported the same way; a method's ``defaults``
-replace the sweep's defaults (after a ``--preset``, before the command line), so ``--algo NAME --help`` shows them.
-Hyper-parameters come from each paper or its reference code (``proto_brax.config.HParams`` cites them).
+An **agent** is an online update of the engine (``FinetuneConfig.algo``): a module of ``proto_brax.agents`` holding
+its losses, its ``update`` and an ``OnlineAlgorithm`` record (``agents.learner``). A **method** is what a sweep runs
+(``python -m proto_brax.sweep --algo NAME``): an agent plus its settings. PROTO, its named special cases (Frozen:
+τ = 0, direct: α₀ = 0, from scratch: a random π₀) and the PROTO paper's baselines are all methods; every method runs
+in the same jitted, vmapped loop and is logged and reported the same way. A method's ``defaults`` replace the sweep's
+defaults (after a ``--preset``, before the command line), so ``--algo NAME --help`` shows them. Hyper-parameters come
+from each paper or its reference code (``proto_brax.config.HParams`` cites them).
+
+Adding a method is one agent module plus its lines here (``AGENTS`` and ``METHODS``). This module imports no JAX: the
+command lines build their arguments from it before anything heavy is imported; ``agent(name)`` imports the module.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from typing import Any
 
 from proto_brax.fidelity import Fidelity
+
+# Agent name -> "module.ATTRIBUTE" of its OnlineAlgorithm in proto_brax.agents (imported on first use).
+AGENTS: dict[str, str] = {
+    "sac": "sac.ONLINE", "td3": "td3.ONLINE", "iql": "iql.ONLINE", "awac": "awac.ONLINE", "pex": "pex.ONLINE",
+    "cql": "cql.ONLINE_CQL", "calql": "cql.ONLINE_CALQL", "off2on": "off2on.ONLINE",
+}
+
+# Offline pretraining algorithms (python -m proto_brax.pretrain --algo; proto_brax.train.offline).
+PRETRAIN_ALGOS = ("eql", "sql", "iql", "bc", "cql", "calql")
+
+
+def agent(name: str):
+    """The ``OnlineAlgorithm`` of agent ``name`` (imports its module)."""
+    if name not in AGENTS:
+        raise ValueError(f"Unknown algo {name!r}: choose one of {list(AGENTS)}.")
+    module, attr = AGENTS[name].split(".")
+    return getattr(importlib.import_module(f"proto_brax.agents.{module}"), attr)
+
 
 # Standard SAC from scratch (Haarnoja et al. 2018): initial temperature 1, target entropy −|A|.
 SAC_SCRATCH_HP = {"alpha_sac_init": 1.0, "target_entropy_scale": -1.0}
@@ -20,7 +45,7 @@ SAC_SCRATCH_HP = {"alpha_sac_init": 1.0, "target_entropy_scale": -1.0}
 @dataclasses.dataclass(frozen=True)
 class Method:
     name: str
-    algo: str  # the engine's online update (proto_brax.train.online.ALGORITHMS)
+    algo: str  # the engine's online update (a key of AGENTS)
     summary: str
     bundles: tuple[str, ...] = ()  # pretraining algos it may start from, the first is 'auto'; () = random init only
     requires_bundle: bool = False  # no bundle found for 'auto' -> an error naming the fix (else a random π₀)

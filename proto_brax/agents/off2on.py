@@ -19,9 +19,9 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from proto_brax.algorithms import sac
-from proto_brax.algorithms.learner import Learner, OnlineAlgorithm, adam, apply_grads
-from proto_brax.algorithms.regularizer import kl_penalty, polyak
+from proto_brax.agents.common import adam, apply_grads, polyak, temperature_step
+from proto_brax.agents.learner import Learner, OnlineAlgorithm
+from proto_brax.agents.proto import kl_penalty
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.data.replay import ReplayBuffer, replay_gather
@@ -122,9 +122,8 @@ def update(learner: Learner, batch, key: jax.Array, alpha: jax.Array, hp: HParam
                                                                   k_actor, nets)
     actor, actor_opt = apply_grads(g, learner.actor_opt, learner.actor)
     target_entropy = hp.target_entropy_scale * rl.actions.shape[-1]
-    t_loss, g = jax.value_and_grad(sac.temperature_loss)(learner.log_alpha_sac, a_info.pop("log_prob"),
-                                                          target_entropy)
-    log_alpha_sac, alpha_opt = apply_grads(g, learner.alpha_opt, learner.log_alpha_sac)
+    log_alpha_sac, alpha_opt, t_loss = temperature_step(learner.log_alpha_sac, learner.alpha_opt,
+                                                           a_info.pop("log_prob"), target_entropy)
     learner = learner.replace(actor=actor, critic=critic, actor_opt=actor_opt, critic_opt=critic_opt,
                               critic_target=polyak(critic, learner.critic_target, hp.target_tau),
                               log_alpha_sac=log_alpha_sac, alpha_opt=alpha_opt, extra=extra)

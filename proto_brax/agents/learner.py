@@ -11,17 +11,9 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from proto_brax.agents.common import adam
 from proto_brax.config import HParams
 from proto_brax.networks import Networks
-
-
-def adam(learning_rate) -> optax.GradientTransformation:
-    """Adam whose learning rate is a traced leaf of the optimizer state (so a grid can vary it).
-
-    ``optax.inject_hyperparams`` reads numeric hyper-parameters from the state at update time, so the transformation
-    used for ``update`` may be built with any placeholder value.
-    """
-    return optax.inject_hyperparams(optax.adam)(learning_rate=learning_rate)
 
 
 @struct.dataclass
@@ -127,9 +119,3 @@ def init_learner(
         value=value,
         value_opt=adam(hp.lr_critic).init(value) if algo.value else None,
     )
-
-
-def apply_grads(grads, opt_state, params):
-    """One Adam step with the learning rate stored in ``opt_state``."""
-    updates, opt_state = adam(0.0).update(grads, opt_state, params)
-    return optax.apply_updates(params, updates), opt_state

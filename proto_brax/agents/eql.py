@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from proto_brax.algorithms.insample import OfflineHParams, insample_update
+from proto_brax.agents.insample import OfflineHParams, insample_update
 
 
 def value_loss(q: jax.Array, v: jax.Array, hp: OfflineHParams) -> jax.Array:

@@ -2,14 +2,14 @@
 
 Li et al., "PROTO: Iterative Policy Regularized Offline-to-Online Reinforcement Learning", Eq. 3–4: the KL penalty
 α·[log π(a|s) − log π̄(a|s)] enters both the critic target and the actor loss; π̄ ← τ π + (1 − τ) π̄ after each actor
-update (π̄ = π₀ at the start); α is annealed linearly. The TD3 variant (paper appendix) uses α‖π(s) − π̄(s)‖².
+update (π̄ = π₀ at the start; ``common.polyak``); α is annealed linearly. The TD3 variant (paper appendix) uses
+α‖π(s) − π̄(s)‖².
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import optax
 
 from proto_brax.networks import gaussian_log_prob
 
@@ -34,8 +34,3 @@ def mse_penalty(action: jax.Array, action_bar: jax.Array, reduce: str = "sum") -
     official code's ``((a − a_k) ** 2).mean()``: the same penalty divided by |A|)."""
     sq = jnp.square(action - action_bar)
     return jnp.mean(sq, axis=-1) if reduce == "mean" else jnp.sum(sq, axis=-1)
-
-
-def polyak(new, old, tau: jax.Array):
-    """old ← τ·new + (1 − τ)·old. With τ = 0 the result equals ``old`` bit for bit (π̄ stays π₀: Frozen)."""
-    return optax.incremental_update(new, old, tau)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from proto_brax.algorithms.learner import apply_grads
+from proto_brax.agents.common import apply_grads
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import tanh_gaussian_log_prob
 

@@ -13,8 +13,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from proto_brax.algorithms import iql, sac
-from proto_brax.algorithms.learner import Learner, OnlineAlgorithm
+from proto_brax.agents import iql, sac
+from proto_brax.agents.learner import Learner, OnlineAlgorithm
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks, sample_tanh_gaussian

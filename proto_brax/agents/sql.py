@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from proto_brax.algorithms.insample import OfflineHParams, insample_update
+from proto_brax.agents.insample import OfflineHParams, insample_update
 
 
 def value_loss(q: jax.Array, v: jax.Array, hp: OfflineHParams) -> jax.Array:

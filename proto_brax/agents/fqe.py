@@ -11,10 +11,9 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from proto_brax.algorithms.bc import bc_update
-from proto_brax.algorithms.insample import OfflineHParams, OfflineState
-from proto_brax.algorithms.learner import apply_grads
-from proto_brax.algorithms.regularizer import polyak
+from proto_brax.agents.bc import bc_update
+from proto_brax.agents.common import apply_grads, polyak
+from proto_brax.agents.insample import OfflineHParams, OfflineState
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks, sample_tanh_gaussian
 

@@ -13,10 +13,10 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from proto_brax.algorithms import sac
-from proto_brax.algorithms.insample import weighted_log_likelihood
-from proto_brax.algorithms.learner import Learner, OnlineAlgorithm, apply_grads
-from proto_brax.algorithms.regularizer import polyak
+from proto_brax.agents import sac
+from proto_brax.agents.common import apply_grads, polyak
+from proto_brax.agents.insample import weighted_log_likelihood
+from proto_brax.agents.learner import Learner, OnlineAlgorithm
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks, sample_tanh_gaussian

@@ -10,8 +10,9 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from proto_brax.algorithms.learner import Learner, OnlineAlgorithm, apply_grads
-from proto_brax.algorithms.regularizer import kl_penalty, polyak
+from proto_brax.agents.common import apply_grads, polyak, temperature_step
+from proto_brax.agents.learner import Learner, OnlineAlgorithm
+from proto_brax.agents.proto import kl_penalty
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks
@@ -82,17 +83,6 @@ def actor_loss(
     return loss, {"actor_loss": loss, "entropy": -jnp.mean(logp), "kl_pibar": jnp.mean(kl), "log_prob": logp}
 
 
-def temperature_loss(log_alpha_sac: jax.Array, log_prob: jax.Array, target_entropy: jax.Array,
-                     form: str = "log_alpha") -> jax.Array:
-    """SAC's automatic entropy tuning: minimize log α_sac · (H(π) − H̄) with H(π) ≈ −log π(a|s) (stop-gradient).
-
-    ``form='alpha'`` minimizes α_sac · (H − H̄) instead (the official PROTO code, as jaxrl's SAC): the same sign of
-    the gradient in log α_sac, scaled by α_sac, so a small temperature moves more slowly.
-    """
-    scale = jnp.exp(log_alpha_sac) if form == "alpha" else log_alpha_sac
-    return scale * jnp.mean(lax.stop_gradient(-log_prob) - target_entropy)
-
-
 def update(
     learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
     nets: Networks, cfg: FinetuneConfig, step: jax.Array,
@@ -111,9 +101,9 @@ def update(
     actor, actor_opt = apply_grads(grads, learner.actor_opt, learner.actor)
 
     target_entropy = hp.target_entropy_scale * batch.actions.shape[-1]
-    t_loss, grads = jax.value_and_grad(temperature_loss)(learner.log_alpha_sac, a_info.pop("log_prob"), target_entropy,
-                                                         cfg.fidelity.temperature_loss)
-    log_alpha_sac, alpha_opt = apply_grads(grads, learner.alpha_opt, learner.log_alpha_sac)
+    log_alpha_sac, alpha_opt, t_loss = temperature_step(learner.log_alpha_sac, learner.alpha_opt,
+                                                       a_info.pop("log_prob"), target_entropy,
+                                                       cfg.fidelity.temperature_loss)
 
     learner = learner.replace(
         actor=actor,

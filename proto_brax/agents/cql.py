@@ -19,10 +19,10 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from proto_brax.algorithms import awac, sac
-from proto_brax.algorithms.insample import OfflineHParams, OfflineState
-from proto_brax.algorithms.learner import Learner, OnlineAlgorithm, apply_grads
-from proto_brax.algorithms.regularizer import polyak
+from proto_brax.agents import awac, sac
+from proto_brax.agents.common import apply_grads, polyak, temperature_step
+from proto_brax.agents.insample import OfflineHParams, OfflineState
+from proto_brax.agents.learner import Learner, OnlineAlgorithm
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks, sample_tanh_gaussian
@@ -78,9 +78,8 @@ def make_update(calibrated: bool):
             learner.actor, critic, learner, batch.observations, k_actor, jnp.zeros(()), nets, cfg)
         actor, actor_opt = apply_grads(g, learner.actor_opt, learner.actor)
         target_entropy = hp.target_entropy_scale * batch.actions.shape[-1]
-        t_loss, g = jax.value_and_grad(sac.temperature_loss)(learner.log_alpha_sac, a_info.pop("log_prob"),
-                                                              target_entropy)
-        log_alpha_sac, alpha_opt = apply_grads(g, learner.alpha_opt, learner.log_alpha_sac)
+        log_alpha_sac, alpha_opt, _ = temperature_step(learner.log_alpha_sac, learner.alpha_opt,
+                                                       a_info.pop("log_prob"), target_entropy)
         learner = learner.replace(actor=actor, critic=critic, actor_opt=actor_opt, critic_opt=critic_opt,
                                   critic_target=polyak(critic, learner.critic_target, hp.target_tau),
                                   log_alpha_sac=log_alpha_sac, alpha_opt=alpha_opt)
