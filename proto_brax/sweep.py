@@ -376,8 +376,9 @@ def _check_out(args: SweepArgs, sweep_cfg: dict, layout: dict | None = None) -> 
             old = _read_config(out)
             if old is None:
                 raise ValueError(f"--resume: {out} holds no sweep to resume (no readable config.json of a sweep).")
-            if old["sweep"] != sweep_cfg:
-                diff = {k: (old["sweep"].get(k), v) for k, v in sweep_cfg.items() if old["sweep"].get(k) != v}
+            recorded = with_later_defaults(old["sweep"], sweep_record(SweepArgs()))
+            if recorded != sweep_cfg:
+                diff = {k: (recorded.get(k), v) for k, v in sweep_cfg.items() if recorded.get(k) != v}
                 raise ValueError(f"--resume: the configuration differs from the one in {out}: {diff}.")
             was = old.get("layout")
             if layout is not None and was is not None and was != layout:
@@ -575,6 +576,26 @@ RUN_ONLY_FIELDS = ("out", "overwrite", "resume", "devices", "report", "tensorboa
                    "num_processes", "process_id", "debug")
 
 
+def sweep_record(args: SweepArgs) -> dict:
+    """The arguments as config.json records them (what --resume compares): JSON types, without the run-only flags."""
+    record = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
+              if k not in RUN_ONLY_FIELDS}
+    return json.loads(json.dumps(record))  # tuples -> lists, as config.json stores them
+
+
+def with_later_defaults(old: dict, defaults: dict) -> dict:
+    """``old`` (a config.json record) with every field it lacks set to its default, recursively: a field added to the
+    suite after the sweep started defaults to the behaviour it had before (the rule for every new field), so an old
+    sweep resumes under new code as long as nothing it recorded differs."""
+    out = dict(old)
+    for k, v in defaults.items():
+        if k not in out:
+            out[k] = v
+        elif isinstance(v, dict) and isinstance(out[k], dict) and k != "hp" and k != "pretrain_hp":
+            out[k] = with_later_defaults(out[k], v)
+    return out
+
+
 def run_sweep(args: SweepArgs) -> list[dict]:
     """Validate, compile, run (or resume) the grid; returns the per-point summary."""
     from proto_brax.train.grid import make_grid
@@ -585,9 +606,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     axes = grid_axes(args)
     base = {"anneal_horizon": float(args.anneal_horizon or args.steps), **method.hp, **args.hp}
     grid = make_grid(axes, list(args.seeds), base=base)  # validated before anything compiles
-    sweep_cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
-                 if k not in RUN_ONLY_FIELDS}
-    sweep_cfg = json.loads(json.dumps(sweep_cfg))  # tuples -> lists, as config.json stores them
+    sweep_cfg = sweep_record(args)
     import jax
 
     lead = jax.process_index() == 0  # with --distributed, process 0 writes; the others compute their shards

@@ -135,6 +135,23 @@ def test_layout_is_recorded_and_a_resume_with_another_layout_is_refused(tiny_swe
         sweep.run_sweep(sweep.SweepArgs(out=other, resume=True, **SMALL))
 
 
+def test_a_sweep_recorded_before_a_field_existed_resumes_and_a_recorded_difference_is_refused(tiny_sweep, tmp_path):
+    """A field added after the sweep started (here: --policy, fidelity.carry_critic_state) takes its default, the
+    behaviour the sweep ran with: resume accepts it. A recorded field that differs is still refused."""
+    config = json.loads((tiny_sweep / "config.json").read_text())
+    old = tmp_path / "old"
+    shutil.copytree(tiny_sweep, old)
+    del config["sweep"]["policy"], config["sweep"]["fidelity"]["carry_critic_state"]
+    (old / "config.json").write_text(json.dumps(config))
+    before = (old / "metrics.jsonl").read_text()
+    sweep.run_sweep(sweep.SweepArgs(out=old, resume=True, **SMALL))
+    assert (old / "metrics.jsonl").read_text() == before  # finished: nothing re-run, nothing lost
+    config["sweep"]["fidelity"]["actor_q"] = "mean"  # recorded, and not what this command asks for
+    (old / "config.json").write_text(json.dumps(config))
+    with pytest.raises(ValueError, match=r"configuration differs.*fidelity"):
+        sweep.run_sweep(sweep.SweepArgs(out=old, resume=True, **SMALL))
+
+
 @pytest.mark.slow
 def test_same_command_twice_is_bit_identical(tmp_path):
     outs = [tmp_path / "a", tmp_path / "b"]
