@@ -219,6 +219,8 @@ class NetworkConfig:
     def __post_init__(self):
         if self.policy not in POLICIES:
             raise ValueError(f"Unknown policy {self.policy!r}: choose one of {list(POLICIES)}.")
+        if self.num_qs < 1:
+            raise ValueError(f"num_qs must be >= 1 (critics in the ensemble); got {self.num_qs}.")
 
 
 class DensityRatioNet(nn.Module):

@@ -64,10 +64,14 @@ class SweepArgs:
     batch_size: int = 256
     learning_starts: int = 1_000
     """Env steps collected before the first update."""
+    updates_per_step: int = 1
+    """Gradient updates per env step: the update-to-data ratio (UTD; RLPD's paper: 20)."""
     hidden: tuple[int, ...] = (256, 256)
     """Hidden layer sizes of actor and critics."""
     critic_layer_norm: bool | None = None
     """LayerNorm in the critics; default: on, except halfcheetah (paper)."""
+    num_qs: int = 2
+    """Critics in the ensemble (a bundle's must match)."""
     policy: Literal["tanh_gaussian", "gaussian"] = "tanh_gaussian"
     """The actor's distribution: tanh-squashed Gaussian (ours) or the official PROTO code's Gaussian with mean
     tanh(m(s)) and a state-independent std (FIDELITY.md); it must match the bundle's."""
@@ -148,9 +152,10 @@ def _finetune_config(args: SweepArgs):
         env=args.env, backend=args.backend, algo=method.algo, regularizer=method.regularizer,
         net=NetworkConfig(hidden=tuple(args.hidden), critic_layer_norm=(
             default_layer_norm(args.env) if args.critic_layer_norm is None else args.critic_layer_norm),
-            policy=args.policy),
+            policy=args.policy, num_qs=args.num_qs),
         steps=args.steps, eval_every=args.eval_every, eval_episodes=args.eval_episodes, batch_size=args.batch_size,
-        learning_starts=args.learning_starts, sampling=sampling, offline_fraction=args.offline_fraction,
+        learning_starts=args.learning_starts, updates_per_step=args.updates_per_step, sampling=sampling,
+        offline_fraction=args.offline_fraction,
         value_reg_backup=args.value_reg_backup, clipped_double_q=args.clipped_double_q, fidelity=args.fidelity,
     )
 
