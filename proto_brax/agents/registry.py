@@ -23,7 +23,7 @@ from proto_brax.fidelity import Fidelity
 # Agent name -> "module.ATTRIBUTE" of its OnlineAlgorithm in proto_brax.agents (imported on first use).
 AGENTS: dict[str, str] = {
     "sac": "sac.ONLINE", "td3": "td3.ONLINE", "iql": "iql.ONLINE", "awac": "awac.ONLINE", "pex": "pex.ONLINE",
-    "cql": "cql.ONLINE_CQL", "calql": "cql.ONLINE_CALQL", "off2on": "off2on.ONLINE",
+    "cql": "cql.ONLINE_CQL", "calql": "cql.ONLINE_CALQL", "off2on": "off2on.ONLINE", "rlpd": "rlpd.ONLINE",
 }
 
 # Offline pretraining algorithms (python -m proto_brax.pretrain --algo; proto_brax.train.offline).
@@ -123,6 +123,12 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "(inverse temperature 10), IQL losses, 50/50 offline/online sampling; from an IQL bundle",
            bundles=("iql",), requires_bundle=True, regularizer=False,
            defaults={"alpha0": (0.0,), "tau": (5e-3,), "eta": (0.9,), "sampling": "symmetric"}),
+    Method("rlpd", "rlpd", "RLPD (Ball et al. 2023): SAC from a random init on 50/50 offline/online batches, 10 "
+           "LayerNorm critics with the min over a random 2 in the backup, UTD 20 (--updates-per-step), raw rewards",
+           regularizer=False, defaults={"checkpoint": "none", "alpha0": (0.0,), "tau": (5e-3,), "eta": (0.9,),
+                                        "sampling": "symmetric", "critic_layer_norm": True, "num_qs": 10,
+                                        "updates_per_step": 20, "learning_starts": 5_000, "reward_scale": 1.0,
+                                        "reward_shift": 0.0}, hp={"alpha_sac_init": 1.0}),
 )}
 
 
