@@ -229,7 +229,7 @@ def make_update_fns(cfg: FinetuneConfig, nets, n_updates: int):
 def update_setup(cfg: FinetuneConfig, sizes: Sizes, key: jax.Array):
     env = envs.make_env(cfg.env, cfg.backend)
     obs, act = env.observation_size, env.action_size
-    nets = make_networks(cfg.net, act, deterministic=cfg.algo == "td3")
+    nets = make_networks(cfg.net, act, deterministic=agent(cfg.algo).deterministic)
     hp = HParams.create()
     k_l, k_d, k_b = jax.random.split(key, 3)
     learner = init_learner(k_l, nets, agent(cfg.algo), hp, obs, act, None)

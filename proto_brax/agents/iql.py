@@ -63,4 +63,5 @@ def online_update(learner: Learner, batch: Transition, key: jax.Array, alpha: ja
     return merge(learner, state), {**info, "actor_updates": jnp.ones(())}
 
 
-ONLINE = OnlineAlgorithm(update=online_update, act=sac.act, deviation=sac.deviation, value=True)
+ONLINE = OnlineAlgorithm(update=online_update, act=sac.act, deviation=sac.deviation, value=True,
+                         policies=("tanh_gaussian", "gaussian"))

@@ -69,6 +69,11 @@ class OnlineAlgorithm:
     # batch is then whatever ``update`` expects).
     init: Callable | None = None
     sample: Callable | None = None
+    deterministic: bool = False  # a deterministic actor π(s) (TD3) instead of a Gaussian's (mean, log σ)
+    policies: tuple[str, ...] = ("tanh_gaussian",)  # the actor distributions (NetworkConfig.policy) it implements
+    # ``configure(cfg) -> OnlineAlgorithm``: the agent specialized to a static configuration (TD3: its exploration
+    # noise clip), called once by ``make_finetune``.
+    configure: Callable | None = None
 
 
 def init_learner(

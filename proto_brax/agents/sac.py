@@ -136,4 +136,5 @@ def deviation(nets: Networks, actor, other, obs: jax.Array, key: jax.Array) -> j
     return jnp.mean(kl_penalty(u, mean, log_std, mean_o, log_std_o))
 
 
-ONLINE = OnlineAlgorithm(update=update, act=act, deviation=deviation, temperature=True)
+ONLINE = OnlineAlgorithm(update=update, act=act, deviation=deviation, temperature=True,
+                         policies=("tanh_gaussian", "gaussian"))

@@ -9,6 +9,9 @@ a penalty on the target actor's action would be ‖clip(ε)‖², smoothing nois
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+
 import jax
 import jax.numpy as jnp
 from jax import lax
@@ -123,4 +126,12 @@ def deviation(nets: Networks, actor, other, obs: jax.Array, key: jax.Array) -> j
     return jnp.mean(mse_penalty(nets.actor.apply(actor, obs), nets.actor.apply(other, obs)))
 
 
-ONLINE = OnlineAlgorithm(update=update, act=act, deviation=deviation, target_actor=True)
+def configure(cfg: FinetuneConfig) -> OnlineAlgorithm:
+    """TD3 with the exploration noise clip of ``cfg.fidelity`` (a static choice: no clip leaves no op in the
+    program)."""
+    clip = cfg.fidelity.td3_expl_noise_clip
+    return ONLINE if clip is None else dataclasses.replace(ONLINE, act=functools.partial(act, noise_clip=clip))
+
+
+ONLINE = OnlineAlgorithm(update=update, act=act, deviation=deviation, target_actor=True, deterministic=True,
+                         policies=("tanh_gaussian", "gaussian"), configure=configure)

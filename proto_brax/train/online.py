@@ -16,7 +16,6 @@ None of them knows about grids: a sweep is ``jit(vmap(fn, in_axes=(0, 0, None, N
 from __future__ import annotations
 
 import dataclasses
-import functools
 from typing import Callable
 
 import jax
@@ -25,7 +24,7 @@ from flax import struct
 from jax import lax
 
 from proto_brax import envs
-from proto_brax.agents import registry, td3
+from proto_brax.agents import registry
 from proto_brax.agents.learner import Learner, Pretrained, init_learner
 from proto_brax.agents.proto import alpha_schedule
 from proto_brax.config import FinetuneConfig, HParams
@@ -62,16 +61,15 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
     env = envs.make_env(cfg.env, cfg.backend)
     obs_size, act_size = env.observation_size, env.action_size
     algo = registry.agent(cfg.algo)
-    if cfg.algo == "td3" and cfg.fidelity.td3_expl_noise_clip is not None:  # a static choice inside TD3's act
-        algo = dataclasses.replace(algo, act=functools.partial(td3.act, noise_clip=cfg.fidelity.td3_expl_noise_clip))
-    nets = make_networks(cfg.net, act_size, deterministic=cfg.algo == "td3")
+    algo = algo.configure(cfg) if algo.configure is not None else algo
+    nets = make_networks(cfg.net, act_size, deterministic=algo.deterministic)
     horizon = cfg.horizon
     if cfg.fidelity.carry_critic_state and algo.init is not None:
-        raise ValueError(f"carry_critic_state is implemented for the learners built by init_learner (sac, td3, iql, "
-                         f"awac), not {cfg.algo!r}.")
-    if cfg.net.policy != "tanh_gaussian" and cfg.algo not in ("sac", "td3", "iql"):
-        raise ValueError(f"policy {cfg.net.policy!r} is implemented for sac, td3 and iql; run {cfg.algo!r} with the "
-                         "tanh_gaussian policy.")
+        raise ValueError(f"carry_critic_state is implemented for the learners built by init_learner, not for "
+                         f"{cfg.algo!r}'s own; turn it off.")
+    if cfg.net.policy not in algo.policies:
+        raise ValueError(f"policy {cfg.net.policy!r} is not implemented for {cfg.algo!r}: use one of "
+                         f"{list(algo.policies)}.")
     if algo.mc_returns and cfg.capacity < horizon * cfg.num_envs:
         raise ValueError(f"algo {cfg.algo!r} keeps Monte-Carlo returns in the buffer: buffer_capacity must be >= "
                          f"episode length × num_envs = {horizon * cfg.num_envs}; got {cfg.capacity}.")
