@@ -33,7 +33,6 @@ from pathlib import Path
 import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 
 @dataclasses.dataclass
@@ -232,7 +231,7 @@ def main(args: Args) -> dict:
 
     os.environ["XLA_FLAGS"] = single_thread_mjx_xla_flags()
 
-    from proto_brax.checkpoints import write_json_atomic
+    from proto_brax.files import write_json_atomic
 
     result = {
         "command": " ".join(sys.argv),

@@ -18,7 +18,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 
 @dataclasses.dataclass
@@ -59,9 +58,9 @@ def main(args: Args) -> dict:
     import numpy as np
 
     from proto_brax.antmaze import AntMaze
-    from proto_brax.checkpoints import write_json_atomic
     from proto_brax.data import maze_planner as mp
     from proto_brax.data.generate import list_snapshots, load_snapshot_actor
+    from proto_brax.files import write_json_atomic
 
     navigate = _navigate_fn()
     snap = list_snapshots("ant-goal")[-1]

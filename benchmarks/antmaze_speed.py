@@ -23,7 +23,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 NATIVE_IDS = {"umaze": "AntMaze_UMaze-v5", "medium": "AntMaze_Medium-v5", "large": "AntMaze_Large-v5"}
 
@@ -110,7 +109,7 @@ def main(args: Args) -> dict:
     os.environ["XLA_FLAGS"] = single_thread_mjx_xla_flags()
 
     from proto_brax import antmaze
-    from proto_brax.checkpoints import write_json_atomic
+    from proto_brax.files import write_json_atomic
 
     result = {
         "command": " ".join(sys.argv),

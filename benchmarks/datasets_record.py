@@ -20,18 +20,16 @@ import datetime
 import json
 import os
 import platform
-import sys
 from pathlib import Path
 
 import tyro
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from proto_brax import datasets
+from proto_brax.data.generate import dataset_names
+from proto_brax.envs import host_cpu
+from proto_brax.files import write_json_atomic
 
-from proto_brax import datasets  # noqa: E402
-from proto_brax.checkpoints import write_json_atomic  # noqa: E402
-from proto_brax.data.generate import dataset_names  # noqa: E402
-from proto_brax.envs import host_cpu  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @dataclasses.dataclass

@@ -63,8 +63,7 @@ def main(args: Args) -> dict:
     import jax
 
     from proto_brax import sweep
-    from proto_brax.checkpoints import write_json_atomic
-    from proto_brax.files import read_jsonl
+    from proto_brax.files import read_jsonl, write_json_atomic
 
     with tempfile.TemporaryDirectory() as tmp:
         argv = sweep_argv(args, Path(tmp) / "sweep")

@@ -28,14 +28,12 @@ import dataclasses
 import datetime
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
 import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 SAC_UPDATE_S = 1.0 / 195.0  # FACTS.md: one SAC update (2x256, batch 256) on this CPU, lax.scan, single run
 

@@ -37,13 +37,12 @@ from typing import Literal
 
 import tyro
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from proto_brax.agents.registry import METHODS, Method, pretrain_flags
+from proto_brax.envs import single_thread_xla_flags
+from proto_brax.files import atomic_write, copy_atomic, nan_for_null
+from proto_brax.sweep import PRESETS
 
-from proto_brax.agents.registry import METHODS, Method, pretrain_flags  # noqa: E402
-from proto_brax.envs import single_thread_xla_flags  # noqa: E402
-from proto_brax.files import atomic_write, copy_atomic, nan_for_null  # noqa: E402
-from proto_brax.sweep import PRESETS  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 DATASETS = tuple(f"{env}-{kind}" for env in ("hopper", "walker2d", "halfcheetah", "ant")
                  for kind in ("medium", "medium-replay", "random"))

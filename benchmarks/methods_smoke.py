@@ -22,11 +22,10 @@ from pathlib import Path
 
 import tyro
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from proto_brax.agents.registry import METHODS
+from proto_brax.files import write_json_atomic
 
-from proto_brax.agents.registry import METHODS  # noqa: E402
-from proto_brax.checkpoints import write_json_atomic  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @dataclasses.dataclass

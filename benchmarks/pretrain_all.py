@@ -26,10 +26,9 @@ from pathlib import Path
 
 import tyro
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from proto_brax.envs import single_thread_xla_flags
 
-from proto_brax.envs import single_thread_xla_flags  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 SINGLE_THREAD = single_thread_xla_flags("")  # the children's whole XLA_FLAGS
 
@@ -92,7 +91,6 @@ def pending(args: Args) -> list[tuple[str, tuple[str, str, list[str]], bool]]:
 
 def main(args: Args) -> None:
     args.logs.mkdir(parents=True, exist_ok=True)
-    sys.path.insert(0, str(ROOT))
     queue = pending(args)
     print(f"{len(queue)} bundle(s) to make: {[(d, job[1], stale) for d, job, stale in queue]}", flush=True)
     from proto_brax.datasets import dataset_path

@@ -25,24 +25,24 @@ import dataclasses
 import hashlib
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import tyro
+from locomotion import ABLATIONS, DATASETS, ETA0, PAPER_METHODS, TAU0, method_of
+
+from proto_brax.checkpoints import bundle_dataset_record
+from proto_brax.datasets import generation_numerics_pinned
+from proto_brax.files import (
+    atomic_write,
+    write_json_atomic,
+    write_text_atomic,
+)
+from proto_brax.report import Sweep, load_sweep
+from proto_brax.stats import iqm_ci
+from proto_brax.sweep import lowest_early_scores
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-from locomotion import ABLATIONS, DATASETS, ETA0, PAPER_METHODS, TAU0, method_of  # noqa: E402
-
-from proto_brax.checkpoints import bundle_dataset_record, write_json_atomic  # noqa: E402
-from proto_brax.datasets import generation_numerics_pinned  # noqa: E402
-from proto_brax.files import atomic_write, write_text_atomic  # noqa: E402
-from proto_brax.report import Sweep, load_sweep  # noqa: E402
-from proto_brax.stats import iqm_ci  # noqa: E402
-from proto_brax.sweep import lowest_early_scores  # noqa: E402
 
 ORDER = ("proto-sac", "frozen", "direct", "iql", "sac-scratch", "proto-td3", "proto-bc", "pex", "awac", "calql",
          "off2on", "td3-scratch", "sac-offline")

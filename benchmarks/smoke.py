@@ -33,7 +33,7 @@ def main() -> int:
     import numpy as np
 
     from proto_brax import sweep
-    from proto_brax.checkpoints import write_json_atomic
+    from proto_brax.files import write_json_atomic
 
     with tempfile.TemporaryDirectory() as tmp:
         sargs = sweep.parse_args(["--preset", "smoke", "--env", args.env, "--steps", str(args.steps),

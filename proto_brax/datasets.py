@@ -454,8 +454,8 @@ class References:
 
 def cmd_measure(a: Measure) -> list[dict]:
     from proto_brax import envs
-    from proto_brax.checkpoints import write_json_atomic
     from proto_brax.data import generate as g
+    from proto_brax.files import write_json_atomic
 
     spec = envs.get_spec(a.env)
     env = envs.make_env(a.env)
@@ -654,7 +654,7 @@ def main(argv: list[str] | None = None) -> None:
 
         mjx = envs.get_spec(parse_name(cmd.name)[0]).default_backend == "mjx"  # AntMaze, Adroit
         os.environ["XLA_FLAGS"] = generation_xla_flags(mjx=mjx)
-    from proto_brax.sweep import exit_on_input_error
+    from proto_brax.startup import exit_on_input_error
 
     run = {Make: cmd_make, Export: cmd_export, Info: cmd_info, List: cmd_list, References: cmd_references,
            Measure: cmd_measure}[type(cmd)]

@@ -9,11 +9,14 @@ removed and the target is left as it was.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
+
+import numpy as np
 
 
 def _umask() -> int:
@@ -128,3 +131,15 @@ def read_jsonl(path: str | os.PathLike, drop_torn_tail: bool = True) -> tuple[li
             raise ValueError(f"{path}: {where} is not a JSON row ({e}).") from None
         rows.append(nan_for_null(row))
     return rows, torn
+
+
+def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
+    with atomic_write(path) as f:
+        json.dump(obj, f, indent=2, sort_keys=True, default=_json_default)
+        f.write("\n")
+
+
+def _json_default(x):
+    if isinstance(x, (np.generic, np.ndarray)):
+        return x.tolist()
+    raise TypeError(f"not JSON serializable: {type(x)}")

@@ -17,7 +17,7 @@ from typing import Literal
 
 import numpy as np
 
-from proto_brax.agents.registry import PRETRAIN_ALGOS
+from proto_brax.agents.registry import PRETRAIN_ALGOS, PRETRAIN_HP
 
 
 @dataclasses.dataclass
@@ -58,8 +58,6 @@ class PretrainArgs:
     overwrite: bool = False
 
 
-# Per-algorithm defaults under the user's --hp: CQL's MuJoCo policy learning rate (its reference commands).
-ALGO_HP = {"cql": {"lr_actor": 1e-4}, "calql": {"lr_actor": 1e-4}}
 
 
 
@@ -95,7 +93,7 @@ def pretrain(args: PretrainArgs) -> dict:
     from proto_brax.networks import NetworkConfig
     from proto_brax.train.offline import PretrainConfig, make_pretrain, run_pretrain
 
-    hp = OfflineHParams.create(**{**ALGO_HP.get(args.algo, {}), **args.hp})
+    hp = OfflineHParams.create(**{**PRETRAIN_HP.get(args.algo, {}), **args.hp})
     dname = checkpoints.dataset_label(args.dataset)
     out = Path(args.out or Path("checkpoints/pretrained") / dname / args.algo)
     check_out(out, args.overwrite)  # before the data are read (or anything trains)
@@ -163,8 +161,7 @@ def pretrain(args: PretrainArgs) -> dict:
 def main(argv: list[str] | None = None) -> None:
     import tyro
 
-    from proto_brax.startup import refuse_repeated
-    from proto_brax.sweep import exit_on_input_error
+    from proto_brax.startup import exit_on_input_error, refuse_repeated
 
     def run():
         refuse_repeated(list(sys.argv[1:] if argv is None else argv), ("--hp",))

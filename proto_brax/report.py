@@ -503,7 +503,7 @@ def make_report(dirs, out: str | os.PathLike | None = None, verbose: bool = True
         "files": files + ["report.json"],
     }
     report = strict_json(report)  # report.json is strict JSON
-    from proto_brax.checkpoints import write_json_atomic
+    from proto_brax.files import write_json_atomic
 
     write_json_atomic(out / "report.json", report)
     if verbose:

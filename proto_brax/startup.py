@@ -1,4 +1,5 @@
-"""A quiet start for the command lines: the known start-up noise of our dependencies, filtered at our entry points only.
+"""What every command line shares: a quiet start (the known start-up noise of our dependencies, filtered at our entry
+points only), one-line input errors, and the refusal of a repeated dict flag.
 
 ``mujoco.mjx`` prints "Failed to import warp" (an optional GPU backend that this CPU suite never uses) on import, and
 Brax warns that its own pipelines are no longer maintained each time it loads an MJCF model. Neither is actionable for
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import sys
 import warnings
 
@@ -35,3 +37,25 @@ def quiet_start() -> None:
     for line in buf.getvalue().splitlines():
         if not line.startswith(KNOWN_LINES):
             print(line, file=sys.stdout)
+
+
+def debug_enabled(argv: list[str] | None = None) -> bool:
+    """Tracebacks of input errors: --debug on the command line or PROTO_BRAX_DEBUG=1 in the environment."""
+    argv = sys.argv[1:] if argv is None else argv
+    return "--debug" in argv or os.environ.get("PROTO_BRAX_DEBUG", "") not in ("", "0")
+
+
+# Errors that describe a bad input (flag, file, directory) and name the fix: one line, no traceback, exit status 2.
+INPUT_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError)
+
+
+def exit_on_input_error(fn, argv: list[str] | None = None):
+    """Run ``fn()``; an input error prints ``error: MESSAGE`` and exits with status 2 (the traceback with --debug or
+    PROTO_BRAX_DEBUG=1)."""
+    try:
+        return fn()
+    except INPUT_ERRORS as e:
+        if debug_enabled(argv):
+            raise
+        print(f"error: {e}\n(the traceback: rerun with --debug or PROTO_BRAX_DEBUG=1)", file=sys.stderr, flush=True)
+        raise SystemExit(2) from None

@@ -24,7 +24,8 @@ import numpy as np
 
 from proto_brax.agents.registry import METHODS, PRETRAIN_ALGOS, describe, get_method, pretrain_flags
 from proto_brax.fidelity import Fidelity
-from proto_brax.files import append_once, read_jsonl, strict_json, write_text_atomic
+from proto_brax.files import append_once, read_jsonl, strict_json, write_json_atomic, write_text_atomic
+from proto_brax.startup import exit_on_input_error
 
 GRID_AXES = ("tau", "eta", "alpha0")
 MethodName = Literal[tuple(METHODS)]  # the one list of method names is proto_brax.agents.registry.METHODS
@@ -133,7 +134,7 @@ class SweepArgs:
     """With --distributed: this process's index, 0 .. num_processes − 1 (0 writes the outputs)."""
     devices: int | None = None
     """CPU only: host devices to shard the grid over (default: one per core). The numbers of a run depend on the
-    layout (devices, runs per device): --resume refuses another one (README: Reliability)."""
+    layout (devices, runs per device): --resume refuses another one (docs/RELIABILITY.md)."""
     debug: bool = False
     """Show the full traceback of an input error (also: PROTO_BRAX_DEBUG=1), instead of a one-line message."""
 
@@ -363,7 +364,7 @@ def not_a_sweep(out: Path) -> str | None:
 
 
 def layout_record(grid_size: int, devices: list) -> dict:
-    """How the grid is laid out over devices: the numbers of a run depend on it (README: Reliability)."""
+    """How the grid is laid out over devices: the numbers of a run depend on it (docs/RELIABILITY.md)."""
     n = len(devices)
     padded = -(-grid_size // n) * n
     return {"devices": n, "platform": devices[0].platform, "runs_per_device": padded // n,
@@ -406,8 +407,6 @@ def _check_out(args: SweepArgs, sweep_cfg: dict, layout: dict | None = None) -> 
 def _prepare_out(args: SweepArgs, config: dict) -> None:
     """Create --out (replacing an old sweep with --overwrite) and write config.json: called once every check of the
     run has passed, so a refused run leaves an old sweep as it was."""
-    from proto_brax.checkpoints import write_json_atomic
-
     out = Path(args.out)
     if args.resume:
         return
@@ -663,7 +662,6 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     if lead:
         _prepare_out(args, config)
     if args.pretrain is not None:
-        from proto_brax.checkpoints import write_json_atomic
         from proto_brax.pretrain import PretrainArgs, pretrain
 
         bundle = Path(args.out) / "pretrained"
@@ -769,7 +767,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     rows, _ = read_jsonl(metrics_path)  # (null, as the file stores NaN, read back as NaN)
     grid_keys = [k for k in axes if len(axes[k]) > 1] or ["tau"]
     summary = summarize_runs(rows, grid_keys)
-    checkpoints.write_json_atomic(out / "summary.json", strict_json({
+    write_json_atomic(out / "summary.json", strict_json({
         "grid_keys": grid_keys, "points": summary, "env": cfg.env, "steps": cfg.steps, "method": args.algo,
         "dataset": dataset_name,
         "first_chunk_seconds_incl_compile": timing["first"],
@@ -870,28 +868,6 @@ def parse_args(argv: list[str] | None = None) -> SweepArgs:
 
         description += f" Envs (--env): {', '.join(REGISTRY)}."
     return tyro.cli(SweepArgs, default=defaults, args=argv, description=description)
-
-
-def debug_enabled(argv: list[str] | None = None) -> bool:
-    """Tracebacks of input errors: --debug on the command line or PROTO_BRAX_DEBUG=1 in the environment."""
-    argv = sys.argv[1:] if argv is None else argv
-    return "--debug" in argv or os.environ.get("PROTO_BRAX_DEBUG", "") not in ("", "0")
-
-
-# Errors that describe a bad input (flag, file, directory) and name the fix: one line, no traceback, exit status 2.
-INPUT_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError)
-
-
-def exit_on_input_error(fn, argv: list[str] | None = None):
-    """Run ``fn()``; an input error prints ``error: MESSAGE`` and exits with status 2 (the traceback with --debug or
-    PROTO_BRAX_DEBUG=1)."""
-    try:
-        return fn()
-    except INPUT_ERRORS as e:
-        if debug_enabled(argv):
-            raise
-        print(f"error: {e}\n(the traceback: rerun with --debug or PROTO_BRAX_DEBUG=1)", file=sys.stderr, flush=True)
-        raise SystemExit(2) from None
 
 
 def start_distributed(args: SweepArgs) -> None:

@@ -13,6 +13,7 @@ from test_engine import SCRATCH, TINY, finetune_fn, point_dataset
 
 from proto_brax import checkpoints, pretrain, sweep
 from proto_brax.agents.learner import Pretrained
+from proto_brax.checkpoints import cli as checkpoints_cli
 from proto_brax.data.dataset import save_npz
 from proto_brax.networks import NetworkConfig
 
@@ -145,12 +146,12 @@ def test_bundle_accepts_its_own_rows_under_another_name(bundle):
 
 def test_checkpoints_cli_lists_bundles(bundle, capsys):
     root, _, _ = bundle
-    checkpoints.main(["list", str(root)])
+    checkpoints_cli.main(["list", str(root)])
     out = capsys.readouterr().out
     assert "eql" in out and "point-noisy" in out
-    checkpoints.main(["show", str(root / "eql")])
+    checkpoints_cli.main(["show", str(root / "eql")])
     assert '"algo": "eql"' in capsys.readouterr().out
-    checkpoints.main(["index", str(root)])
+    checkpoints_cli.main(["index", str(root)])
     index = (root / "INDEX.md").read_text()
     assert "| `eql` | eql | point-noisy | [0, 1] | 400 |" in index
 

@@ -230,7 +230,7 @@ def test_staleness_follows_the_snapshots_a_kind_is_made_from(medium):
 
 def test_checkpoint_index_names_expert_and_medium_of_each_env():
     from proto_brax import envs
-    from proto_brax.checkpoints import index_markdown
+    from proto_brax.checkpoints.cli import index_markdown
 
     text = index_markdown(Path(__file__).resolve().parents[1] / "checkpoints")
     for env in ("hopper", "walker2d", "halfcheetah", "ant"):

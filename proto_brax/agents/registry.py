@@ -28,6 +28,11 @@ AGENTS: dict[str, str] = {
 
 # Offline pretraining algorithms (python -m proto_brax.pretrain --algo; proto_brax.train.offline).
 PRETRAIN_ALGOS = ("eql", "sql", "iql", "bc", "cql", "calql")
+VALUE_ALGOS = ("eql", "sql", "iql")  # bundles with a state-value network
+TEMPERATURE_ALGOS = ("cql", "calql")  # bundles with SAC's entropy temperature
+GAUSSIAN_POLICY_ALGOS = ("eql", "sql", "iql")  # also pretrain the official code's Gaussian policy (FIDELITY.md)
+# Their defaults under the user's --hp: CQL's MuJoCo policy learning rate (its reference commands).
+PRETRAIN_HP = {"cql": {"lr_actor": 1e-4}, "calql": {"lr_actor": 1e-4}}
 
 
 def agent(name: str):

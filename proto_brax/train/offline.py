@@ -13,15 +13,11 @@ from proto_brax import envs
 from proto_brax.agents import cql, eql, iql, sql
 from proto_brax.agents.fqe import bc_fqe_update
 from proto_brax.agents.insample import OfflineHParams, OfflineState, init_offline_state
-from proto_brax.agents.registry import PRETRAIN_ALGOS
+from proto_brax.agents.registry import GAUSSIAN_POLICY_ALGOS, PRETRAIN_ALGOS, TEMPERATURE_ALGOS, VALUE_ALGOS
 from proto_brax.config import FinetuneConfig
 from proto_brax.data.dataset import OfflineDataset
 from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train.evaluate import run_episodes
-
-VALUE_ALGOS = ("eql", "sql", "iql")  # bundles with a state-value network
-TEMPERATURE_ALGOS = ("cql", "calql")  # bundles with SAC's entropy temperature
-GAUSSIAN_POLICY_ALGOS = ("eql", "sql", "iql")  # also pretrain the official code's Gaussian policy (FIDELITY.md)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,83 @@
+"""``python -m proto_brax.checkpoints list | show | index | checksum``: what is committed under ``checkpoints/``.
+
+The command line sits above the library (``proto_brax.checkpoints``): the index reads the behaviour snapshots through
+the dataset generator, which itself loads them with the library.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from proto_brax.checkpoints import add_checksum, find_bundles, read_metadata
+from proto_brax.files import write_text_atomic
+
+
+def index_markdown(root: Path) -> str:
+    """A markdown index of the bundles and behaviour snapshots under ``root`` (checkpoints/INDEX.md)."""
+    lines = ["# Committed checkpoints", "", "Regenerate with `python -m proto_brax.checkpoints index`.", "",
+             "## Pretrained bundles", "", "| bundle | algo | dataset | seeds | steps | offline return | normalized |",
+             "|---|---|---|---|---|---|---|"]
+    for p in find_bundles(root):
+        m = read_metadata(p)
+        ev = m.get("offline_eval", {})
+        ret, score = ev.get("return_mean", float("nan")), ev.get("normalized_score_mean", float("nan"))
+        lines.append(f"| `{p.relative_to(root)}` | {m['algo']} | {m.get('dataset', '?')} | {m['seeds']} | {m['steps']} "
+                     f"| {ret:.1f} | {score:.1f} |")
+    lines += ["", "## Behaviour-policy snapshots (SAC from scratch)", "",
+              "Eval: the training-time evaluation (10 episodes, mean action); behaviour: the stochastic policy that "
+              "generates the datasets (`python -m proto_brax.datasets measure ENV`, 100 episodes). Expert = the final "
+              "snapshot; medium = the behaviour return closest to a normalized ⅓.", "",
+              "| env | snapshots | steps | final eval / behaviour return | medium snapshot | its behaviour return "
+              "(normalized) |", "|---|---|---|---|---|---|"]
+    from proto_brax import envs
+    from proto_brax.data.generate import list_snapshots, pick_expert_medium
+    from proto_brax.datasets import reference_returns
+
+    for env_dir in sorted((Path(root) / "behavior").glob("*")):
+        snaps = list_snapshots(env_dir.name, Path(root) / "behavior") if any(env_dir.glob("step_*")) else []
+        if not snaps:
+            continue
+        last, beh = snaps[-1], lambda s: s.metadata.get("behavior_return", {}).get("mean", float("nan"))
+        if env_dir.name == "ant-goal":  # no expert/medium: its last snapshot steers the AntMaze datasets
+            lines.append(f"| ant-goal (AntMaze datasets' controller) | {len(snaps)} | {last.step} | "
+                         f"{last.eval_return:.1f} / - | - | - |")
+            continue
+        _, med = pick_expert_medium(snaps, reference_returns(envs.get_spec(env_dir.name)))
+        score = float(envs.normalized_score(env_dir.name, beh(med)))
+        f = lambda x: "not measured" if x != x else f"{x:.1f}"  # noqa: E731 (NaN: no behaviour return yet)
+        lines.append(f"| {env_dir.name} | {len(snaps)} | {last.step} | {last.eval_return:.1f} / {f(beh(last))} | "
+                     f"{med.step} | {f(beh(med))} ({f(score)}) |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    """python -m proto_brax.checkpoints list [ROOT] | show PATH | index [ROOT] | checksum PATH..."""
+    import sys
+
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] not in ("list", "show", "index", "checksum"):
+        raise SystemExit("usage: python -m proto_brax.checkpoints list [ROOT=checkpoints] | show PATH | index [ROOT] "
+                         "| checksum PATH... (record or verify bundles' content checksums)")
+    if argv[0] == "checksum":
+        for p in argv[1:]:
+            print(f"{p}: content_sha256 {add_checksum(p)}")
+        return
+    if argv[0] == "index":
+        root = Path(argv[1] if len(argv) > 1 else "checkpoints")
+        text = index_markdown(root)
+        write_text_atomic(root / "INDEX.md", text)
+        print(text)
+        return
+    if argv[0] == "list":
+        root = Path(argv[1] if len(argv) > 1 else "checkpoints")
+        print(f"{'bundle':60s} {'algo':>5s} {'dataset':>26s} {'seeds':>5s} {'steps':>7s} {'offline score':>14s}")
+        for p in find_bundles(root):
+            m = read_metadata(p)
+            score = m.get("offline_eval", {}).get("normalized_score_mean", float("nan"))
+            print(f"{str(p):60s} {m['algo']:>5s} {m.get('dataset', '?'):>26s} {len(m['seeds']):>5d} {m['steps']:>7d} "
+                  f"{score:>14.1f}")
+    else:
+        if len(argv) < 2:
+            raise SystemExit("usage: python -m proto_brax.checkpoints show PATH")
+        print(json.dumps(read_metadata(argv[1]), indent=2, sort_keys=True))
