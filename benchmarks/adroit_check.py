@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @dataclasses.dataclass
 class Args:
     tasks: tuple[str, ...] = ("pen", "door", "hammer")
-    """Adroit tasks (proto_brax.adroit.TASKS)."""
+    """Adroit tasks (proto_brax.envs.adroit.TASKS)."""
     steps: int = 50
     """Control steps of the cross-check rollouts (and of each timed MJX rollout)."""
     batch: int = 64
@@ -62,7 +62,7 @@ def native_rollout(task: str, model, layout, actions):
     import mujoco
     import numpy as np
 
-    from proto_brax import adroit
+    from proto_brax.envs import adroit
 
     field, body = adroit.LAYOUT[task]
     ids = adroit.task_ids(task, model)
@@ -99,7 +99,7 @@ def gym_rollout(task: str, layout, actions):
     import gymnasium_robotics
     import numpy as np
 
-    from proto_brax import adroit
+    from proto_brax.envs import adroit
 
     gym.register_envs(gymnasium_robotics)
     env = gym.make(adroit.get_task(task).gym_id, max_episode_steps=10**9).unwrapped
@@ -138,7 +138,7 @@ def check_task(task: str, args: Args) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from proto_brax import adroit
+    from proto_brax.envs import adroit
 
     spec = adroit.get_task(task)
     xml_kwargs = {k: v for k, v in (("max_geom_pairs", args.max_geom_pairs),

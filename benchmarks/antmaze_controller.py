@@ -38,7 +38,7 @@ def _navigate_fn():
         action; 1: sampled actions). ``env`` appends the goal to its observation (``goal_in_obs``)."""
         import jax.numpy as jnp
 
-        from proto_brax.data.maze_planner import controller_obs
+        from proto_brax.envs.maze_planner import controller_obs
         from proto_brax.train.evaluate import run_episodes_with_lengths
 
         def policy(obs, k):
@@ -57,9 +57,9 @@ def main(args: Args) -> dict:
     import jax
     import numpy as np
 
-    from proto_brax.antmaze import AntMaze
-    from proto_brax.data import maze_planner as mp
     from proto_brax.data.generate import list_snapshots, load_snapshot_actor
+    from proto_brax.envs import maze_planner as mp
+    from proto_brax.envs.antmaze import AntMaze
     from proto_brax.files import write_json_atomic
 
     navigate = _navigate_fn()

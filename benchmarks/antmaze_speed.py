@@ -29,7 +29,7 @@ NATIVE_IDS = {"umaze": "AntMaze_UMaze-v5", "medium": "AntMaze_Medium-v5", "large
 
 @dataclasses.dataclass
 class Args:
-    maze: str = "umaze"  # umaze | medium | large (proto_brax.antmaze.MAZES)
+    maze: str = "umaze"  # umaze | medium | large (proto_brax.envs.antmaze.MAZES)
     batches: tuple[int, ...] = (1, 128)  # vmapped batch sizes of the MJX measurement
     steps: int = 100  # control steps per jitted scan
     reps: int = 3  # timed calls per measurement (median)
@@ -42,7 +42,7 @@ def mjx_speed(env, batch: int, steps: int, reps: int) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from proto_brax.antmaze import FRAME_SKIP
+    from proto_brax.envs.antmaze import FRAME_SKIP
 
     def rollout(keys):
         state = jax.vmap(env.reset)(keys)
@@ -81,7 +81,7 @@ def native_speed(maze: str, n: int, reps: int) -> dict:
     import gymnasium_robotics
     import numpy as np
 
-    from proto_brax.antmaze import FRAME_SKIP, maze_map
+    from proto_brax.envs.antmaze import FRAME_SKIP, maze_map
 
     gym.register_envs(gymnasium_robotics)
     env = gym.make(NATIVE_IDS[maze], maze_map=maze_map(maze), continuing_task=True,
@@ -108,7 +108,7 @@ def main(args: Args) -> dict:
 
     os.environ["XLA_FLAGS"] = single_thread_mjx_xla_flags()
 
-    from proto_brax import antmaze
+    from proto_brax.envs import antmaze
     from proto_brax.files import write_json_atomic
 
     result = {

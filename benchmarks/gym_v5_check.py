@@ -1,4 +1,4 @@
-"""Fidelity and speed of our MJX gymnasium v5 locomotion (proto_brax/gym_v5.py) against gymnasium's native envs.
+"""Fidelity and speed of our MJX gymnasium v5 locomotion (proto_brax/envs/gym_v5.py) against gymnasium's native envs.
 
     python benchmarks/gym_v5_check.py                  # all four -> benchmarks/results/gym_v5_check.json
     python benchmarks/gym_v5_check.py --tasks hopper --episodes 32 --out /tmp/h.json
@@ -41,7 +41,7 @@ SAC_UPDATE_S = 1.0 / 195.0  # FACTS.md: one SAC update (2x256, batch 256) on thi
 @dataclasses.dataclass
 class Args:
     tasks: tuple[str, ...] = ("hopper", "walker2d", "halfcheetah", "ant")
-    """gymnasium v5 tasks (proto_brax.gym_v5.TASKS)."""
+    """gymnasium v5 tasks (proto_brax.envs.gym_v5.TASKS)."""
     starts: int = 4
     """Lockstep starts (gymnasium resets, seeds 0..starts-1)."""
     lockstep_steps: int = 100
@@ -61,7 +61,7 @@ class Args:
 def lockstep_stats(task: str, args: Args, env, step) -> dict:
     import numpy as np
 
-    from proto_brax import gym_v5
+    from proto_brax.envs import gym_v5
 
     native = gym_v5.native_env(task)
     runs = []
@@ -122,7 +122,7 @@ def native_returns(task: str, episodes: int, seed: int):
     import gymnasium as gym
     import numpy as np
 
-    from proto_brax import gym_v5
+    from proto_brax.envs import gym_v5
 
     env = gym.make(gym_v5.get_task(task).gym_id)  # with gymnasium's TimeLimit(1000)
     rng = np.random.default_rng(seed)

@@ -37,21 +37,12 @@ from typing import Literal
 
 import tyro
 
-from proto_brax.agents.registry import METHODS, Method, pretrain_flags
+from proto_brax.agents.registry import METHODS, pretrain_flags
+from proto_brax.analysis.locomotion_plan import ABLATIONS, DATASETS, PAPER_METHODS, PRESET, method_of
 from proto_brax.envs import single_thread_xla_flags
 from proto_brax.files import atomic_write, copy_atomic, nan_for_null
-from proto_brax.sweep import PRESETS
 
 ROOT = Path(__file__).resolve().parents[1]
-
-DATASETS = tuple(f"{env}-{kind}" for env in ("hopper", "walker2d", "halfcheetah", "ant")
-                 for kind in ("medium", "medium-replay", "random"))
-PAPER_METHODS = ("proto-sac", "frozen", "direct", "iql", "sac-scratch", "proto-td3", "proto-bc")
-PRESET = "paper-mujoco-100k"
-TAU0, ETA0 = PRESETS[PRESET][1]["tau"][0], PRESETS[PRESET][1]["eta"][0]  # the ablations' middle values (proto-sac)
-# Ablation -> the sweep flag and its two non-default values (0.5 and 2 × τ₀; η 0.8 and 1.0).
-ABLATIONS = {"ablate-tau": ("--tau", (0.5 * TAU0, 2 * TAU0)), "ablate-eta": ("--eta", (0.8, 1.0))}
-
 
 @dataclasses.dataclass
 class Args:
@@ -74,11 +65,6 @@ class Args:
     runners side by side on a 2-core machine, where two single-threaded processes do more updates per second in total
     than two sharded ones (FACTS.md) and 5 seeds need no padding run. A started sweep resumes only under the setting
     it started with (its state's padding follows the device count)."""
-
-
-def method_of(name: str) -> Method:
-    """The sweep method a runner method name stands for (an ablation is a PROTO-SAC sweep)."""
-    return METHODS["proto-sac" if name in ABLATIONS else name]
 
 
 def sweep_command(dataset: str, method: str, args: Args, resume: bool) -> list[str]:

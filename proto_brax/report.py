@@ -5,7 +5,7 @@ Each DIR is the ``--out`` of ``python -m proto_brax.sweep`` (one task per DIR). 
 
 * ``curves.png``     learning curves per grid point, one subplot per task: mean over seeds and the min–max band;
 * ``aggregate.png``  per grid point present in every task, the IQM over all (task, seed) runs at each evaluation
-  index with a 95% percentile-bootstrap band (:func:`proto_brax.stats.iqm_ci`);
+  index with a 95% percentile-bootstrap band (:func:`proto_brax.analysis.stats.iqm_ci`);
 * ``heatmap.png``    τ×η map of the final score (mean over seeds of the last evaluation), per task and α₀;
   skipped (with a note) where a task has fewer than 2 τ or 2 η values;
 * ``deviation.png``  PROTO's Figure 7: deviation from π₀ (``dev_pi0`` at the last evaluation) against the final
@@ -183,7 +183,7 @@ def curves(sweep: Sweep) -> dict[str, dict]:
 
 def aggregate(sweeps: list[Sweep]) -> dict:
     """IQM [95% bootstrap CI] over all (task, seed) runs per grid point label present in every task."""
-    from proto_brax.stats import iqm_ci
+    from proto_brax.analysis.stats import iqm_ci
 
     metric = "normalized_score" if all(s.metric == "normalized_score" for s in sweeps) else "eval_return"
     common = [lab for lab in _labels(sweeps[0].runs) if all(lab in {r.label for r in s.runs} for s in sweeps)]

@@ -18,7 +18,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -520,7 +520,7 @@ def lowest_early_scores(runs: list[list[dict]], fraction: float = 0.1) -> list[f
 
 def summarize_runs(rows: list[dict], grid_keys: list[str]) -> list[dict]:
     """Per grid point (over seeds): final and average return/normalized score with mean ± std and IQM [95% CI]."""
-    from proto_brax.stats import summarize
+    from proto_brax.analysis.stats import summarize
 
     by_point: dict[tuple, dict[int, list[dict]]] = {}
     for r in rows:
@@ -600,8 +600,26 @@ def with_later_defaults(old: dict, defaults: dict) -> dict:
     return out
 
 
-def run_sweep(args: SweepArgs) -> list[dict]:
-    """Validate, compile, run (or resume) the grid; returns the per-point summary."""
+@dataclasses.dataclass
+class Plan:
+    """A checked sweep, ready to run: everything a run needs, built before --out is touched."""
+
+    args: SweepArgs
+    cfg: Any  # FinetuneConfig
+    axes: dict[str, list[float]]
+    grid: Any  # train.grid.Grid
+    ft: Any  # train.online.Finetune (None until --pretrain has made its bundle)
+    pretrained: Any
+    per_run: bool  # bundle seeds gathered per run (else one shared)
+    dataset: Any
+    dataset_name: str | None
+    config: dict  # config.json
+    lead: bool  # this process writes the outputs (process 0)
+
+
+def plan_sweep(args: SweepArgs) -> Plan:
+    """Every check of the command line, the bundle and the dataset, then the compiled-to-be program and config.json's
+    record; nothing is written."""
     from proto_brax.train.grid import make_grid
 
     validate_args(args)
@@ -637,7 +655,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     if bmeta is not None and dataset_name is not None:
         validate_bundle_dataset(bmeta, dataset_name, (dmeta or {}).get("content_hash"))
     from proto_brax.agents.registry import agent
-    from proto_brax.data.dataset import transform_rewards, validate_for_env, with_returns_to_go
+    from proto_brax.data.dataset import validate_for_env
     from proto_brax.train.online import make_finetune
 
     if dataset is not None:  # every check of the data before --out is touched
@@ -659,46 +677,72 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         config["dataset_vs_bundle"] = bundle_dataset_record(bmeta, dmeta)
         if note := regenerated_note(config["dataset_vs_bundle"]):
             print(note, flush=True)
-    if lead:
-        _prepare_out(args, config)
-    if args.pretrain is not None:
-        from proto_brax.pretrain import PretrainArgs, pretrain
+    return Plan(args=args, cfg=cfg, axes=axes, grid=grid, ft=ft, pretrained=pretrained, per_run=per_run,
+                dataset=dataset, dataset_name=dataset_name, config=config, lead=lead)
 
-        bundle = Path(args.out) / "pretrained"
-        if not (bundle / "metadata.json").exists():  # a resumed sweep reuses the bundle it made
-            # Off2On's ensemble is the bundle's seeds (shared by every run); otherwise one bundle seed per run seed.
-            seeds = tuple(range(cfg.ensemble_size)) if cfg.algo == "off2on" else tuple(args.seeds)
-            pretrain(PretrainArgs(dataset=dataset_name, dataset_size=args.dataset_size, algo=args.pretrain,
-                                  env=args.env, seeds=seeds,
-                                  steps=args.pretrain_steps, log_every=min(10_000, args.pretrain_steps),
-                                  hidden=tuple(args.hidden), critic_layer_norm=cfg.net.critic_layer_norm,
-                                  policy=cfg.net.policy,
-                                  reward_scale=args.reward_scale, reward_shift=args.reward_shift,
-                                  hp=dict(args.pretrain_hp),
-                                  out=bundle, overwrite=True))
-        pretrained, per_run, bmeta = _load_checkpoint(bundle, cfg, grid, args.algo)
-        cfg = dataclasses.replace(cfg, **reward_transform(args, bmeta, dataset))
-        ft = make_finetune(cfg)
-        config["checkpoint_metadata"] = bmeta
-        config["dataset_vs_bundle"] = bundle_dataset_record(bmeta, dmeta)
-        config["finetune"] = dataclasses.asdict(cfg)
-        if lead:
-            write_json_atomic(Path(args.out) / "config.json", strict_json(config))
+
+def pretrain_into_out(plan: Plan) -> Plan:
+    """--pretrain: the bundle in OUT/pretrained (one bundle seed per run seed; a resumed sweep reuses it), then the
+    finetuning program from it."""
+    from proto_brax.checkpoints import bundle_dataset_record
+    from proto_brax.pretrain import PretrainArgs, pretrain
+    from proto_brax.train.online import make_finetune
+
+    args, cfg = plan.args, plan.cfg
+    bundle = Path(args.out) / "pretrained"
+    if not (bundle / "metadata.json").exists():
+        # Off2On's ensemble is the bundle's seeds (shared by every run); otherwise one bundle seed per run seed.
+        seeds = tuple(range(cfg.ensemble_size)) if cfg.algo == "off2on" else tuple(args.seeds)
+        pretrain(PretrainArgs(dataset=plan.dataset_name, dataset_size=args.dataset_size, algo=args.pretrain,
+                              env=args.env, seeds=seeds,
+                              steps=args.pretrain_steps, log_every=min(10_000, args.pretrain_steps),
+                              hidden=tuple(args.hidden), critic_layer_norm=cfg.net.critic_layer_norm,
+                              policy=cfg.net.policy,
+                              reward_scale=args.reward_scale, reward_shift=args.reward_shift,
+                              hp=dict(args.pretrain_hp),
+                              out=bundle, overwrite=True))
+    pretrained, per_run, bmeta = _load_checkpoint(bundle, cfg, plan.grid, args.algo)
+    cfg = dataclasses.replace(cfg, **reward_transform(args, bmeta, plan.dataset))
+    config = {**plan.config, "checkpoint_metadata": bmeta, "finetune": dataclasses.asdict(cfg),
+              "dataset_vs_bundle": bundle_dataset_record(bmeta, plan.config["dataset_metadata"])}
+    if plan.lead:
+        write_json_atomic(Path(args.out) / "config.json", strict_json(config))
+    return dataclasses.replace(plan, cfg=cfg, ft=make_finetune(cfg), pretrained=pretrained, per_run=per_run,
+                               config=config)
+
+
+def train_dataset(plan: Plan):
+    """The offline data as the runs train on it: rewards transformed, Cal-QL's returns-to-go, on the device."""
+    import jax
+
+    from proto_brax.agents.registry import agent
+    from proto_brax.data.dataset import transform_rewards, with_returns_to_go
+
+    cfg, dataset = plan.cfg, plan.dataset
+    if dataset is None:
+        return None
+    dataset = transform_rewards(dataset, cfg.reward_scale, cfg.reward_shift)
+    if agent(cfg.algo).mc_returns:  # Cal-QL's calibration bound: returns-to-go with the runs' γ
+        dataset = with_returns_to_go(dataset, float(np.asarray(plan.grid.hparams.gamma)[0]))
+    return jax.tree.map(jax.numpy.asarray, dataset)
+
+
+def execute(plan: Plan) -> float | None:
+    """Run (or resume) the grid chunk by chunk: progress, metrics rows, resume checkpoints. Returns the seconds of
+    the first chunk run (compilation included), None when nothing was left to run."""
+    import jax
     from tqdm import tqdm
 
     from proto_brax import __version__, checkpoints
     from proto_brax.train.grid import compile_grid, grid_mesh, padded_size, run_grid
 
-    if dataset is not None:
-        dataset = transform_rewards(dataset, cfg.reward_scale, cfg.reward_shift)
-        if agent(cfg.algo).mc_returns:  # Cal-QL's calibration bound: returns-to-go with the runs' γ
-            dataset = with_returns_to_go(dataset, float(np.asarray(grid.hparams.gamma)[0]))
-        dataset = jax.tree.map(jax.numpy.asarray, dataset)
+    args, cfg, grid, lead = plan.args, plan.cfg, plan.grid, plan.lead
+    dataset = train_dataset(plan)
     mesh = grid_mesh()
     out = Path(args.out)
     metrics_path = out / "metrics.jsonl"
-    print(f"grid: {grid.size} runs ({' × '.join(f'{k} {len(v)}' for k, v in axes.items())} × {len(args.seeds)} "
-          f"seeds), padded to {padded_size(grid.size, mesh)} over {mesh.devices.size} device(s) "
+    print(f"grid: {grid.size} runs ({' × '.join(f'{k} {len(v)}' for k, v in plan.axes.items())} × "
+          f"{len(args.seeds)} seeds), padded to {padded_size(grid.size, mesh)} over {mesh.devices.size} device(s) "
           f"{[d.platform for d in mesh.devices.flat]}; {cfg.steps} steps per run", flush=True)
 
     def restore(state):
@@ -735,7 +779,7 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         finite = [r["eval_return"] for r in rows if np.isfinite(r["eval_return"])]
         bar.set_postfix(eval=f"{np.mean(finite) if finite else float('nan'):.1f}", upd_s=f"{updates_per_s:.0f}")
 
-    program = compile_grid(ft, mesh, per_run)
+    program = compile_grid(plan.ft, mesh, plan.per_run)
 
     def on_start(stats):
         """π₀ at step 0 (chunk −1): the reference of the initial drop; curves start there."""
@@ -755,30 +799,34 @@ def run_sweep(args: SweepArgs) -> list[dict]:
         if tb is not None:
             _write_tensorboard(tb, rows)
 
-    run_grid(ft, grid, pretrained, dataset, mesh=mesh, program=program, callback=on_chunk, restore=restore,
-             on_start=on_start,
-             per_run_pretrained=per_run)
+    run_grid(plan.ft, grid, plan.pretrained, dataset, mesh=mesh, program=program, callback=on_chunk,
+             restore=restore, on_start=on_start, per_run_pretrained=plan.per_run)
     bar.close()
-    if not lead:
-        return []
     if tb is not None:
         for w in tb:
             w.close()
-    rows, _ = read_jsonl(metrics_path)  # (null, as the file stores NaN, read back as NaN)
+    return timing["first"]
+
+
+def summarize(plan: Plan, first_chunk_seconds: float | None) -> list[dict]:
+    """summary.json, the results table, the throughput line and the PNG report from metrics.jsonl."""
+    args, cfg, axes = plan.args, plan.cfg, plan.axes
+    out = Path(args.out)
+    rows, _ = read_jsonl(out / "metrics.jsonl")  # (null, as the file stores NaN, read back as NaN)
     grid_keys = [k for k in axes if len(axes[k]) > 1] or ["tau"]
     summary = summarize_runs(rows, grid_keys)
     write_json_atomic(out / "summary.json", strict_json({
         "grid_keys": grid_keys, "points": summary, "env": cfg.env, "steps": cfg.steps, "method": args.algo,
-        "dataset": dataset_name,
-        "first_chunk_seconds_incl_compile": timing["first"],
+        "dataset": plan.dataset_name,
+        "first_chunk_seconds_incl_compile": first_chunk_seconds,
     }))
     print_table(summary, grid_keys)
     steady = steady_throughput(rows, cfg.eval_every * cfg.updates_per_step)
     throughput = f"{steady:.0f} updates/s over the grid" if steady else "not measured (no full chunk after the first)"
-    if timing["first"] is None:
+    if first_chunk_seconds is None:
         print(f"\nno chunk left to run: the sweep in {out} was complete; steady throughput {throughput}")
     else:
-        print(f"\ncompile + first chunk: {timing['first']:.1f} s; steady throughput {throughput}")
+        print(f"\ncompile + first chunk: {first_chunk_seconds:.1f} s; steady throughput {throughput}")
     if args.report:
         from proto_brax.report import make_report
 
@@ -786,6 +834,18 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     print(f"\nwrote {out}/config.json, metrics.jsonl ({len(rows)} rows), summary.json"
           + (", report/ (PNG plots)" if args.report else ""))
     return summary
+
+
+def run_sweep(args: SweepArgs) -> list[dict]:
+    """Plan (every check, nothing written), prepare --out, pretrain (--pretrain), run (or resume) the grid, summarize;
+    returns the per-point summary (empty on processes other than 0)."""
+    plan = plan_sweep(args)
+    if plan.lead:
+        _prepare_out(args, plan.config)
+    if args.pretrain is not None:
+        plan = pretrain_into_out(plan)
+    first = execute(plan)
+    return summarize(plan, first) if plan.lead else []
 
 
 PRESETS: dict[str, tuple[str, dict]] = {

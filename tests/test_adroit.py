@@ -1,4 +1,4 @@
-"""Adroit pen / door / hammer on MJX (proto_brax/adroit.py): the MJX-loadable XML, and our observation / reward /
+"""Adroit pen / door / hammer on MJX (proto_brax/envs/adroit.py): the MJX-loadable XML, and our observation / reward /
 success formulas against gymnasium-robotics' own env on the same states.
 
 The fast tests use no jit: the formulas run in numpy and in jnp (eagerly) on the MuJoCo data of gymnasium-robotics'
@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from proto_brax import adroit, envs
+from proto_brax import envs
+from proto_brax.envs import adroit
 
 TASKS = ("pen", "door", "hammer")
 STATE_KEY = {"pen": "desired_orien", "door": "door_body_pos", "hammer": "board_pos"}

@@ -1,4 +1,4 @@
-"""AntMaze on MJX (proto_brax/antmaze.py): sizes and registry, sparse reward, reset cells, and a trajectory
+"""AntMaze on MJX (proto_brax/envs/antmaze.py): sizes and registry, sparse reward, reset cells, and a trajectory
 cross-check against gymnasium-robotics' own MuJoCo ``AntMaze_UMaze-v5``.
 
 Everything physical runs unbatched through one module-scoped env whose ``reset`` and ``step`` are jitted once:
@@ -16,8 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from proto_brax import antmaze, envs
-from proto_brax.antmaze import GOAL_RADIUS, MAZE_SIZE_SCALING, POSITION_NOISE, AntMaze
+from proto_brax import envs
+from proto_brax.envs import antmaze
+from proto_brax.envs.antmaze import GOAL_RADIUS, MAZE_SIZE_SCALING, POSITION_NOISE, AntMaze
 
 NOISE = POSITION_NOISE * MAZE_SIZE_SCALING  # ±1 m per axis around a cell centre
 

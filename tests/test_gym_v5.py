@@ -1,4 +1,4 @@
-"""Gymnasium's MuJoCo v5 locomotion on MJX (proto_brax/gym_v5.py) against gymnasium's own envs.
+"""Gymnasium's MuJoCo v5 locomotion on MJX (proto_brax/envs/gym_v5.py) against gymnasium's own envs.
 
 Fast tests use no MJX compile: the model we load against gymnasium's (every array field), our observation / reward /
 health formulas (numpy and float32 jnp) on the states gymnasium's own env steps through, and our reset distribution
@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from proto_brax import envs, gym_v5
+from proto_brax import envs
+from proto_brax.envs import gym_v5
 
 TASKS = ("hopper", "walker2d", "halfcheetah", "ant")
 
@@ -150,7 +151,7 @@ def test_unknown_task_and_overrides():
 # walker2d 45 steps 1.1e-5 / 3.5e-4 / 1e-5 (falls at 46 on both); halfcheetah 20 steps 1.5e-4 / 2.9e-3 / 2.8e-4,
 # then float32 chaos (Δqpos 0.06 by step 40; the same run in float64 MJX stays within 1e-9 for 40 steps, see below);
 # ant 1 step 3.5e-7, Δqpos 0.04 by step 10 — in float64 MJX too, so it is not round-off but MJX 3.17's contact
-# model differing from MuJoCo 4.0's (proto_brax/antmaze.py: plane-capsule friction pyramid orientation). The
+# model differing from MuJoCo 4.0's (proto_brax/envs/antmaze.py: plane-capsule friction pyramid orientation). The
 # tolerances below are those maxima times ~10.
 LOCKSTEP = {  # task: (steps, qpos_tol, obs_tol, reward_tol)
     "hopper": (25, 3e-6, 5e-5, 1e-5),
@@ -186,7 +187,7 @@ def test_float64_mjx_matches_gymnasium_to_roundoff():
 import jax
 jax.config.update("jax_enable_x64", True)
 import numpy as np
-from proto_brax import gym_v5
+from proto_brax.envs import gym_v5
 env = gym_v5.GymV5("halfcheetah")
 native = gym_v5.native_env("halfcheetah")
 native.reset(seed=0)

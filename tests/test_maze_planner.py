@@ -12,8 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from proto_brax import antmaze, envs
-from proto_brax.data import maze_planner as mp
+from proto_brax import envs
+from proto_brax.envs import antmaze
+from proto_brax.envs import maze_planner as mp
 
 # gymnasium-robotics' U_MAZE (1 = wall): the free cells form a U from (1, 1) round to (3, 1).
 U = [[1, 1, 1, 1, 1], [1, 0, 0, 0, 1], [1, 1, 1, 0, 1], [1, 0, 0, 0, 1], [1, 1, 1, 1, 1]]
@@ -97,9 +98,9 @@ def test_antmaze_collection_labels_like_d4rl():
     """Collection mechanics with an untrained controller (a small random actor): D4RL's sparse rewards against the
     evaluation goal with terminals equal to them, episodes contiguous and cut by timeouts, starts in task cells,
     deterministic in the key."""
-    from proto_brax.antmaze import cell_to_xy
     from proto_brax.data import antmaze_data as ad
     from proto_brax.data.generate import flatten_env_major, stochastic_policy
+    from proto_brax.envs.antmaze import cell_to_xy
     from proto_brax.networks import NetworkConfig, make_networks
 
     env, planner = ad.data_env("umaze")

@@ -1,8 +1,10 @@
-"""benchmarks/results_md.py on hand-made published sweeps: per-run drop/final, claims verdicts, gzip metrics, PNG."""
+"""proto_brax.analysis.results_md (python benchmarks/results_md.py) on hand-made published sweeps: per-run
+drop/final, claims verdicts, gzip metrics, PNG."""
 
 from __future__ import annotations
 
 import gzip
+import importlib
 import importlib.util
 import json
 import shutil
@@ -19,7 +21,10 @@ STEPS = (100, 200, 300, 1000)  # the first 10% of a 1000-step run holds the eval
 
 
 def load_module(name: str = "results_md"):
-    """benchmarks/NAME.py as a module (registered before it runs: its dataclass needs its module)."""
+    """proto_brax.analysis.results_md, or the driver benchmarks/NAME.py as a module (registered before it runs: its
+    dataclass needs its module)."""
+    if name == "results_md":
+        return importlib.import_module("proto_brax.analysis.results_md")
     if name not in sys.modules:
         spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
         sys.modules[name] = importlib.util.module_from_spec(spec)

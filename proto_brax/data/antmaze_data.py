@@ -29,7 +29,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from proto_brax.antmaze import (
+from proto_brax.data.dataset import Transition
+from proto_brax.data.partial import run_segments
+from proto_brax.envs.antmaze import (
     GOAL_RADIUS,
     MAZE_SIZE_SCALING,
     MAZES,
@@ -39,9 +41,7 @@ from proto_brax.antmaze import (
     sparse_reward,
     upside_down,
 )
-from proto_brax.data.dataset import Transition
-from proto_brax.data.maze_planner import controller_obs, make_planner
-from proto_brax.data.partial import run_segments
+from proto_brax.envs.maze_planner import controller_obs, make_planner
 
 KINDS = ("play", "diverse")
 EPISODE_LENGTH = 1000

@@ -26,7 +26,7 @@ and from where (``gymnasium/envs/mujoco/{hopper,walker2d,half_cheetah,ant}_v5.py
 * **Health and termination** (``is_healthy``, ``terminate_when_unhealthy=True``): hopper
   ``all(|state_vector()[2:]| < 100)`` and ``0.7 < z`` and ``|angle| < 0.2``; walker2d ``0.8 < z < 2`` and
   ``|angle| < 1``; ant ``isfinite(state_vector())`` and ``0.2 ≤ z ≤ 1``; halfcheetah never terminates. The time limit
-  (1000 steps for all four, gymnasium's ``max_episode_steps``) is the registry's (``proto_brax/envs.py``).
+  (1000 steps for all four, gymnasium's ``max_episode_steps``) is the registry's (``proto_brax/envs/__init__.py``).
 * **Reset** (``reset_model``): ``qpos = init_qpos + U(±c)``; ``qvel = init_qvel + U(±c)`` (hopper, walker2d) or
   ``init_qvel + c · N(0, 1)`` (halfcheetah, ant); ``c = reset_noise_scale`` = 5e-3 (hopper, walker2d), 0.1
   (halfcheetah, ant); ``init_qpos = qpos0`` of the model, ``init_qvel = 0``. Then ``mj_forward`` (``mjx.forward``).

@@ -35,7 +35,7 @@ What is reproduced, and from where (``gymnasium_robotics/envs/adroit_hand/adroit
 D4RL's own ``hand_dapg`` envs differ from gymnasium-robotics in two places, which ``d4rl_reward=True`` restores:
 door and hammer *subtract* ``0.1 ‖palm − handle/hammer‖`` (gymnasium-robotics adds it), and D4RL's pen ends the
 episode when the pen drops (``z < 0.075``). D4RL also registers pen with 100-step episodes (door, hammer 200);
-gymnasium-robotics registers all three at 200 (see ``proto_brax/envs.py`` for what the registry uses).
+gymnasium-robotics registers all three at 200 (see ``proto_brax/envs/__init__.py`` for what the registry uses).
 
 **Measured** (``benchmarks/adroit_check.py``, 50 random-action control steps from one reset, 2026-12-01, on the
 2-core CPU under a load average of ~8 from other jobs, so speeds are low and only their ratios mean much):

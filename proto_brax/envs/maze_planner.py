@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from proto_brax.antmaze import MAZE_SIZE_SCALING, cell_to_xy, heading_to, rotate_ant_obs
+from proto_brax.envs.antmaze import MAZE_SIZE_SCALING, cell_to_xy, heading_to, rotate_ant_obs
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

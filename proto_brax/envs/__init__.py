@@ -131,7 +131,7 @@ REGISTRY: dict[str, EnvSpec] = {
     # a = clip(-x / 0.2, -1, 1); re-measured by tests/test_engine.py::test_point_references.
     "point": EnvSpec("point", "generalized", episode_length=50, ref_random=0.34, ref_expert=49.0,
                      reward_scale_rule="none"),  # unit-size rewards already: keeps the test task raw
-    # AntMaze (proto_brax/antmaze.py): D4RL's sparse-reward eval mazes on MJX; time limits are D4RL's (700 umaze,
+    # AntMaze (proto_brax/envs/antmaze.py): D4RL's sparse-reward eval mazes on MJX; time limits are D4RL's (700 umaze,
     # 1000 medium/large) and the references are D4RL's antmaze ones (0 / 1), so the score is 100 x success-return.
     # Goal reaching on AntMaze's physics (open floor): the low-level controller the AntMaze datasets steer.
     "ant-goal": EnvSpec("ant-goal", "mjx", episode_length=1000, reward_scale_rule="none"),
@@ -141,7 +141,7 @@ REGISTRY: dict[str, EnvSpec] = {
                               reward_scale_rule="none", reward_shift=-1.0, goal_task=True),
     "antmaze-large": EnvSpec("antmaze-large", "mjx", episode_length=1000, ref_random=0.0, ref_expert=1.0,
                             reward_scale_rule="none", reward_shift=-1.0, goal_task=True),
-    # Adroit (proto_brax/adroit.py): gymnasium-robotics' AdroitHand{Pen,Door,Hammer}-v1 on MJX, with cylinders turned
+    # Adroit (envs/adroit.py): gymnasium-robotics' AdroitHand{Pen,Door,Hammer}-v1 on MJX, with cylinders turned
     # into capsules (MJX has no cylinder-box collider; benchmarks/results/adroit_check.json measures the effect).
     # These are the D4RL tasks PROTO reports, so the registry builds them as D4RL's hand_dapg envs (d4rl_reward: the
     # palm-distance term of door / hammer is subtracted, as in D4RL and gymnasium-robotics <= 1.2.0, where 1.4.2 adds
@@ -159,7 +159,7 @@ REGISTRY: dict[str, EnvSpec] = {
                     reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25),
     "hammer": EnvSpec("hammer", "mjx", episode_length=200, ref_random=-274.856578, ref_expert=12794.1340,
                       reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25),
-    # Gymnasium's MuJoCo v5 locomotion on MJX (proto_brax/gym_v5.py; the dynamics of Minari's mujoco/* data),
+    # Gymnasium's MuJoCo v5 locomotion on MJX (proto_brax/envs/gym_v5.py; the dynamics of Minari's mujoco/* data),
     # gymnasium's 1000-step limits. References: D4RL's (d4rl/infos.py REF_MIN_SCORE / REF_MAX_SCORE, random / expert,
     # measured on the v2 envs: mujoco-py, Hopper-v3 etc.), so scores sit beside published D4RL ones; v5 differs
     # from v2 in small ways (e.g. walker2d's left-foot friction, ant's contact cost and 105-dim observation).
@@ -190,19 +190,19 @@ def make_env(name: str, backend: str | None = None) -> Env:
     if name == "point":
         return PointReach(backend)
     if name == "ant-goal":
-        from proto_brax.antmaze import AntGoal  # imported lazily: brax's import is slow
+        from proto_brax.envs.antmaze import AntGoal  # imported lazily: brax's import is slow
 
         return AntGoal(backend=backend, **dict(spec.kwargs))
     if name.startswith("antmaze-"):
-        from proto_brax.antmaze import AntMaze  # imported lazily: brax's import is slow
+        from proto_brax.envs.antmaze import AntMaze  # imported lazily: brax's import is slow
 
         return AntMaze(maze=name.removeprefix("antmaze-"), backend=backend, **dict(spec.kwargs))
     if name in ("pen", "door", "hammer"):
-        from proto_brax.adroit import Adroit  # imported lazily: brax's import is slow
+        from proto_brax.envs.adroit import Adroit  # imported lazily: brax's import is slow
 
         return Adroit(name, backend=backend, **dict(spec.kwargs))
     if name.endswith("-v5"):
-        from proto_brax.gym_v5 import GymV5  # imported lazily: brax's import is slow
+        from proto_brax.envs.gym_v5 import GymV5  # imported lazily: brax's import is slow
 
         return GymV5(name.removesuffix("-v5"), backend=backend, **dict(spec.kwargs))
     from brax import envs as brax_envs  # imported lazily: brax's import is slow
