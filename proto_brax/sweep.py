@@ -300,10 +300,11 @@ def _load_checkpoint(path: Path | None, cfg, grid, method_name: str = "proto-sac
                          f"but {path} holds {meta.get('algo')!r}: pass a matching --checkpoint or --pretrain "
                          f"{method.bundles[0]}.")
     state, meta = checkpoints.load_bundle(path)
-    value = state.value if agent(cfg.algo).value else None
-    if agent(cfg.algo).value and value is None:
+    algo = agent(cfg.algo)
+    value = state.value if algo.value else None
+    if algo.value and value is None:
         raise ValueError(f"--algo {method_name} needs a bundle with a value network (IQL); {path} has none.")
-    log_alpha = state.log_alpha_sac if agent(cfg.algo).temperature else None  # only CQL bundles hold one
+    log_alpha = state.log_alpha_sac if algo.temperature else None  # only CQL bundles hold one
     carry = cfg.fidelity.carry_critic_state  # the critic's Adam state and target critic (FIDELITY.md row 5)
     pre = Pretrained(actor=state.actor, critic=state.critic, value=value, log_alpha_sac=log_alpha,
                      critic_target=state.critic_target if carry else None,
@@ -595,7 +596,7 @@ def with_later_defaults(old: dict, defaults: dict) -> dict:
     for k, v in defaults.items():
         if k not in out:
             out[k] = v
-        elif isinstance(v, dict) and isinstance(out[k], dict) and k != "hp" and k != "pretrain_hp":
+        elif isinstance(v, dict) and isinstance(out[k], dict):
             out[k] = with_later_defaults(out[k], v)
     return out
 

@@ -46,3 +46,21 @@ def temperature_step(log_alpha_sac: jax.Array, alpha_opt, log_prob: jax.Array, t
     loss, grad = jax.value_and_grad(temperature_loss)(log_alpha_sac, log_prob, target_entropy, form)
     log_alpha_sac, alpha_opt = apply_grads(grad, alpha_opt, log_alpha_sac)
     return log_alpha_sac, alpha_opt, loss
+
+
+def actor_critic_step(learner, critic_loss, actor_loss, target_entropy: jax.Array, target_tau: jax.Array,
+                      form: str = "log_alpha"):
+    """SAC's order of steps, shared by SAC, CQL / Cal-QL and Off2On: one Adam step of ``critic_loss(critic)``, one of
+    ``actor_loss(actor, critic)`` against the *updated* critic (its aux holds ``log_prob``), the temperature step,
+    and the target critic's Polyak step. Both losses return ``(loss, info)``. Returns (learner, critic info, actor
+    info without ``log_prob``, temperature loss)."""
+    (_, c_info), grads = jax.value_and_grad(critic_loss, has_aux=True)(learner.critic)
+    critic, critic_opt = apply_grads(grads, learner.critic_opt, learner.critic)
+    (_, a_info), grads = jax.value_and_grad(actor_loss, has_aux=True)(learner.actor, critic)
+    actor, actor_opt = apply_grads(grads, learner.actor_opt, learner.actor)
+    log_alpha_sac, alpha_opt, t_loss = temperature_step(learner.log_alpha_sac, learner.alpha_opt,
+                                                        a_info.pop("log_prob"), target_entropy, form)
+    learner = learner.replace(actor=actor, critic=critic, actor_opt=actor_opt, critic_opt=critic_opt,
+                              critic_target=polyak(critic, learner.critic_target, target_tau),
+                              log_alpha_sac=log_alpha_sac, alpha_opt=alpha_opt)
+    return learner, c_info, a_info, t_loss

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from proto_brax.agents import awac, sac
-from proto_brax.agents.common import apply_grads, polyak, temperature_step
+from proto_brax.agents.common import actor_critic_step
 from proto_brax.agents.insample import OfflineHParams, OfflineState
 from proto_brax.agents.learner import Learner, OnlineAlgorithm
 from proto_brax.config import FinetuneConfig, HParams
@@ -72,18 +72,13 @@ def make_update(calibrated: bool):
                                                    calibrated)
             return td + hp.cql_alpha * penalty, {**info, **p_info}
 
-        (_, c_info), g = jax.value_and_grad(critic_loss, has_aux=True)(learner.critic)
-        critic, critic_opt = apply_grads(g, learner.critic_opt, learner.critic)
-        (_, a_info), g = jax.value_and_grad(sac.actor_loss, has_aux=True)(
-            learner.actor, critic, learner, batch.observations, k_actor, jnp.zeros(()), nets, cfg)
-        actor, actor_opt = apply_grads(g, learner.actor_opt, learner.actor)
-        target_entropy = hp.target_entropy_scale * batch.actions.shape[-1]
-        log_alpha_sac, alpha_opt, _ = temperature_step(learner.log_alpha_sac, learner.alpha_opt,
-                                                       a_info.pop("log_prob"), target_entropy)
-        learner = learner.replace(actor=actor, critic=critic, actor_opt=actor_opt, critic_opt=critic_opt,
-                                  critic_target=polyak(critic, learner.critic_target, hp.target_tau),
-                                  log_alpha_sac=log_alpha_sac, alpha_opt=alpha_opt)
-        return learner, {**c_info, **a_info, "alpha_sac": jnp.exp(log_alpha_sac), "actor_updates": jnp.ones(())}
+        learner, c_info, a_info, _ = actor_critic_step(
+            learner, critic_loss,
+            lambda actor, critic: sac.actor_loss(actor, critic, learner, batch.observations, k_actor, jnp.zeros(()),
+                                                 nets, cfg),
+            hp.target_entropy_scale * batch.actions.shape[-1], hp.target_tau)
+        return learner, {**c_info, **a_info, "alpha_sac": jnp.exp(learner.log_alpha_sac),
+                         "actor_updates": jnp.ones(())}
 
     return update
 

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from proto_brax.agents.common import adam, apply_grads, polyak, temperature_step
+from proto_brax.agents.common import actor_critic_step, adam, apply_grads
 from proto_brax.agents.learner import Learner, OnlineAlgorithm
 from proto_brax.agents.proto import kl_penalty
 from proto_brax.config import FinetuneConfig, HParams
@@ -116,20 +116,14 @@ def update(learner: Learner, batch, key: jax.Array, alpha: jax.Array, hp: HParam
     (_, d_info), g = jax.value_and_grad(density_loss, has_aux=True)(extra["density"], nets, off, on)
     extra["density"], extra["density_opt"] = apply_grads(g, extra["density_opt"], extra["density"])
 
-    (_, c_info), g = jax.value_and_grad(critic_loss, has_aux=True)(learner.critic, learner, rl, k_critic, hp, nets)
-    critic, critic_opt = apply_grads(g, learner.critic_opt, learner.critic)
-    (_, a_info), g = jax.value_and_grad(actor_loss, has_aux=True)(learner.actor, critic, learner, rl.observations,
-                                                                  k_actor, nets)
-    actor, actor_opt = apply_grads(g, learner.actor_opt, learner.actor)
-    target_entropy = hp.target_entropy_scale * rl.actions.shape[-1]
-    log_alpha_sac, alpha_opt, t_loss = temperature_step(learner.log_alpha_sac, learner.alpha_opt,
-                                                           a_info.pop("log_prob"), target_entropy)
-    learner = learner.replace(actor=actor, critic=critic, actor_opt=actor_opt, critic_opt=critic_opt,
-                              critic_target=polyak(critic, learner.critic_target, hp.target_tau),
-                              log_alpha_sac=log_alpha_sac, alpha_opt=alpha_opt, extra=extra)
-    return learner, {**c_info, **a_info, **d_info, "alpha_sac": jnp.exp(log_alpha_sac), "temperature_loss": t_loss,
-                     "priority_mean": jnp.mean(new_p), "offline_share": jnp.mean(rows < n_data),
-                     "actor_updates": jnp.ones(())}
+    learner, c_info, a_info, t_loss = actor_critic_step(
+        learner, lambda critics: critic_loss(critics, learner, rl, k_critic, hp, nets),
+        lambda actors, critics: actor_loss(actors, critics, learner, rl.observations, k_actor, nets),
+        hp.target_entropy_scale * rl.actions.shape[-1], hp.target_tau)
+    learner = learner.replace(extra=extra)
+    return learner, {**c_info, **a_info, **d_info, "alpha_sac": jnp.exp(learner.log_alpha_sac),
+                     "temperature_loss": t_loss, "priority_mean": jnp.mean(new_p),
+                     "offline_share": jnp.mean(rows < n_data), "actor_updates": jnp.ones(())}
 
 
 def init(key: jax.Array, nets: Networks, cfg: FinetuneConfig, hp: HParams, obs_size: int, act_size: int,

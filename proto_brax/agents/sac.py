@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from proto_brax.agents.common import apply_grads, polyak, temperature_step
+from proto_brax.agents.common import actor_critic_step, polyak
 from proto_brax.agents.learner import Learner, OnlineAlgorithm
 from proto_brax.agents.proto import kl_penalty
 from proto_brax.config import FinetuneConfig, HParams
@@ -90,32 +90,13 @@ def update(
     """One PROTO-SAC gradient step: critic, actor (against the new critic), temperature, target Q̄ and π̄ Polyak."""
     del step  # SAC updates every component every step
     k_critic, k_actor = jax.random.split(key)
-    (_, c_info), grads = jax.value_and_grad(critic_loss, has_aux=True)(
-        learner.critic, learner, batch, k_critic, alpha, hp, nets, cfg
-    )
-    critic, critic_opt = apply_grads(grads, learner.critic_opt, learner.critic)
-
-    (_, a_info), grads = jax.value_and_grad(actor_loss, has_aux=True)(
-        learner.actor, critic, learner, batch.observations, k_actor, alpha, nets, cfg
-    )
-    actor, actor_opt = apply_grads(grads, learner.actor_opt, learner.actor)
-
-    target_entropy = hp.target_entropy_scale * batch.actions.shape[-1]
-    log_alpha_sac, alpha_opt, t_loss = temperature_step(learner.log_alpha_sac, learner.alpha_opt,
-                                                       a_info.pop("log_prob"), target_entropy,
-                                                       cfg.fidelity.temperature_loss)
-
-    learner = learner.replace(
-        actor=actor,
-        critic=critic,
-        critic_target=polyak(critic, learner.critic_target, hp.target_tau),
-        pibar=polyak(actor, learner.pibar, hp.tau) if cfg.regularizer else learner.pibar,
-        actor_opt=actor_opt,
-        critic_opt=critic_opt,
-        log_alpha_sac=log_alpha_sac,
-        alpha_opt=alpha_opt,
-    )
-    return learner, {**c_info, **a_info, "temperature_loss": t_loss, "alpha_sac": jnp.exp(log_alpha_sac),
+    learner, c_info, a_info, t_loss = actor_critic_step(
+        learner, lambda critic: critic_loss(critic, learner, batch, k_critic, alpha, hp, nets, cfg),
+        lambda actor, critic: actor_loss(actor, critic, learner, batch.observations, k_actor, alpha, nets, cfg),
+        hp.target_entropy_scale * batch.actions.shape[-1], hp.target_tau, cfg.fidelity.temperature_loss)
+    if cfg.regularizer:
+        learner = learner.replace(pibar=polyak(learner.actor, learner.pibar, hp.tau))
+    return learner, {**c_info, **a_info, "temperature_loss": t_loss, "alpha_sac": jnp.exp(learner.log_alpha_sac),
                      "actor_updates": jnp.ones(())}
 
 
