@@ -83,8 +83,8 @@ def brax_child(args: Args) -> None:
 
 
 def steady_rate(marks: list[tuple[int, float]]) -> float:
-    """Env steps per second from the second evaluation period on (the first compiles)."""
-    (s0, t0), (s1, t1) = marks[-2 if len(marks) < 3 else 1], marks[-1]
+    """Env steps per second between the first and the last of ``marks`` ((env step, wall time) pairs)."""
+    (s0, t0), (s1, t1) = marks[0], marks[-1]
     return (s1 - s0) / (t1 - t0)
 
 
@@ -95,7 +95,8 @@ def run_brax(args: Args) -> float:
     if p.returncode:
         raise SystemExit(f"brax run failed:\n{p.stderr[-3000:]}")
     marks = json.loads(p.stdout.strip().splitlines()[-1])["marks"]
-    # progress_fn runs at step 0 (before training) and after each period: periods after the first one that trained
+    # progress_fn runs at step 0 (before training) and after each period: from the end of the first period, which
+    # compiles, to the end of the last
     return steady_rate(marks[1:])
 
 
