@@ -30,6 +30,7 @@ import sys
 import time
 from pathlib import Path
 
+import _quiet  # noqa: F401  (first: the quiet start)
 import tyro
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,6 +17,8 @@ import sys
 import time
 from pathlib import Path
 
+import _quiet  # noqa: F401  (first: the quiet start)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

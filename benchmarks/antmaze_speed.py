@@ -22,6 +22,8 @@ import sys
 import time
 from pathlib import Path
 
+import _quiet  # noqa: F401  (first: the quiet start)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 NATIVE_IDS = {"umaze": "AntMaze_UMaze-v5", "medium": "AntMaze_Medium-v5", "large": "AntMaze_Large-v5"}

@@ -22,6 +22,7 @@ import os
 import platform
 from pathlib import Path
 
+import _quiet  # noqa: F401  (first: the quiet start)
 import tyro
 
 from proto_brax import datasets

@@ -31,6 +31,7 @@ import os
 import time
 from pathlib import Path
 
+import _quiet  # noqa: F401  (first: the quiet start)
 import tyro
 
 ROOT = Path(__file__).resolve().parents[1]

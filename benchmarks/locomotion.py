@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 from typing import Literal
 
+import _quiet  # noqa: F401  (first: the quiet start)
 import tyro
 
 from proto_brax.agents.registry import METHODS, pretrain_flags

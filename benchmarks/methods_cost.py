@@ -23,6 +23,7 @@ import platform
 import sys
 from pathlib import Path
 
+import _quiet  # noqa: F401  (first: the quiet start)
 import jax
 import jax.numpy as jnp
 import tyro

@@ -20,6 +20,7 @@ import sys
 import time
 from pathlib import Path
 
+import _quiet  # noqa: F401  (first: the quiet start)
 import tyro
 
 from proto_brax.agents.registry import METHODS

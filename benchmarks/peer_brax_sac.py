@@ -31,6 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import _quiet  # noqa: F401  (first: the quiet start)
 import tyro
 
 

@@ -13,6 +13,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import _quiet  # noqa: F401  (first: the quiet start)
+
 
 @dataclasses.dataclass
 class Args:

@@ -42,6 +42,7 @@ import sys
 import time
 from typing import Any, Callable
 
+import _quiet  # noqa: F401  (first: the quiet start)
 import jax
 import jax.numpy as jnp
 import numpy as np

@@ -42,3 +42,24 @@ def test_a_repeated_dict_flag_is_refused_not_silently_dropped():
     with pytest.raises(ValueError, match="--pretrain-hp is given 2 times"):
         sweep.parse_args(["--pretrain-hp", "alpha", "1", "--pretrain-hp", "eql_z_clip", "7"])
     assert sweep.parse_args(["--hp", "lr_actor", "1e-4", "gamma", "0.9"]).hp == {"lr_actor": 1e-4, "gamma": 0.9}
+
+
+def test_every_benchmark_script_starts_quietly():
+    """Each benchmark driver imports ``_quiet`` (the quiet start) before any import that may load MuJoCo or Brax:
+    top-level imports of jax, brax, mujoco, proto_brax or another script, and imports inside functions."""
+    import ast
+    from pathlib import Path
+
+    heavy = ("jax", "brax", "mujoco", "proto_brax", "throughput", "numpy")
+    for path in sorted((Path(__file__).resolve().parents[1] / "benchmarks").glob("*.py")):
+        if path.name == "_quiet.py":
+            continue
+        names = [(node.lineno, alias.name if isinstance(node, ast.Import) else node.module or "")
+                 for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, (ast.Import, ast.ImportFrom))
+                 for alias in (node.names if isinstance(node, ast.Import) else node.names[:1])]
+        light = ("proto_brax.analysis.results_md",)  # RESULTS.md's driver loads neither MuJoCo nor Brax
+        loads = [line for line, name in names if name.split(".")[0] in heavy and name not in light]
+        if not loads:
+            continue
+        quiet = [line for line, name in names if name == "_quiet"]
+        assert quiet and quiet[0] < min(loads), f"{path.name}: import _quiet before line {min(loads)}"
