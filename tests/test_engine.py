@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+from jax import lax
 
 from proto_brax import envs
 from proto_brax.agents.bc import bc_update
@@ -218,6 +219,23 @@ def test_vmapped_grid_run_equals_single_run():
         np.testing.assert_allclose(metrics["eval_return"][:, i], np.asarray(m["eval_return"]), rtol=2e-2, atol=0.2)
 
 
+def test_a_grid_of_one_run_per_device_runs_the_unbatched_program_bit_for_bit():
+    """A device's block of one run is not vmapped (``grid.run_batched``: a batch-of-one vmap runs the LayerNorm
+    critics at half speed on XLA:CPU): a one-run grid gives exactly the numbers of the same run's jitted chunks, where
+    a batch-of-one vmap rounds differently."""
+    cfg = dataclasses.replace(TINY, net=dataclasses.replace(TINY.net, critic_layer_norm=True))
+    ft = online.make_finetune(cfg)
+    grid = make_grid({"tau": [0.01]}, seeds=[5], base={**SCRATCH, "alpha0": 0.5})
+    _, metrics = run_grid(ft, grid)
+    hp = HParams.create(**{k: v for k, v in grid.points[0].items() if k != "seed"})
+    state = jax.jit(ft.init)(hp, jax.random.PRNGKey(5), None, None)
+    chunk = jax.jit(ft.chunk)
+    for c in range(cfg.num_chunks):
+        state, m = chunk(state, hp, None, jnp.asarray(c * cfg.eval_every, jnp.int32))
+        for k in ("eval_return", "critic_loss", "actor_loss", "q_mean", "dev_pibar"):
+            np.testing.assert_array_equal(metrics[k][c, 0], np.asarray(m[k]), err_msg=f"chunk {c} {k}")
+
+
 def test_same_seed_same_result_and_no_retrace():
     ft, single = finetune_fn(TINY)
     hp = HParams.create(**SCRATCH)
@@ -381,3 +399,47 @@ def test_online_rewards_enter_the_buffer_transformed_and_returns_stay_raw():
     np.testing.assert_allclose(scaled, 3.0 * raw - 1.0, rtol=1e-6, atol=1e-6)
     for k in ("train_return", "eval_return"):
         np.testing.assert_allclose(np.asarray(m3[k]), np.asarray(m1[k]), rtol=1e-6, err_msg=k)
+
+
+def _full_horizon_stats(env, horizon, policy, key, episodes):
+    """The evaluation as a scan over the whole horizon (the code before the early exit): the reference."""
+    k_reset, k_run = jax.random.split(key)
+    s = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+
+    def body(carry, k):
+        s, ret, alive, length = carry
+        s = jax.vmap(env.step)(s, policy(s.obs, k))
+        ret = ret + jnp.where(alive, s.reward, 0.0)
+        return (s, ret, jnp.logical_and(alive, s.done == 0), length + alive.astype(jnp.int32)), None
+
+    init = (s, jnp.zeros(episodes), jnp.ones(episodes, bool), jnp.zeros(episodes, jnp.int32))
+    (_, ret, _, length), _ = lax.scan(body, init, jax.random.split(k_run, horizon))
+    return ret, length
+
+
+def test_evaluation_stops_when_every_episode_has_ended_with_the_full_horizons_result():
+    """Episodes that all end early cost their own steps, not the horizon's (counted by a host callback in the
+    policy), and the returns and lengths equal a full-horizon scan's bit for bit, alone and under a grid's vmap
+    (where the loop runs to the grid's longest episode)."""
+    env = envs.make_env("point")
+    calls = []
+
+    def noisy_push(obs, k):  # pushes right with per-step noise (the step keys matter), counting its calls
+        jax.debug.callback(lambda: calls.append(1))
+        return jnp.clip(0.6 + 0.5 * jax.random.normal(k, (obs.shape[0], 2)), -1.0, 1.0)
+
+    horizon = 500
+    fn = jax.jit(lambda k: run_episode_stats(env, horizon, noisy_push, k, 8))
+    keys = jax.random.split(jax.random.PRNGKey(11), 3)
+    stats = jax.block_until_ready(fn(keys[0]))
+    assert 0 < int(stats.lengths.max()) < horizon  # every episode ended early
+    assert len(calls) == int(stats.lengths.max())  # ... and the loop ran that many steps, not the horizon
+    ref = jax.jit(lambda k: _full_horizon_stats(env, horizon, noisy_push, k, 8))
+    for k in keys:
+        got, want = fn(k), ref(k)
+        np.testing.assert_array_equal(got.returns, want[0])
+        np.testing.assert_array_equal(got.lengths, want[1])
+    grid = jax.jit(jax.vmap(lambda k: run_episode_stats(env, horizon, noisy_push, k, 8)))(keys)
+    for i, k in enumerate(keys):
+        np.testing.assert_array_equal(grid.returns[i], ref(k)[0])
+        np.testing.assert_array_equal(grid.lengths[i], ref(k)[1])

@@ -43,15 +43,20 @@ def run_episode_stats(
     def success(state) -> jax.Array:  # decided at trace time: Brax's locomotion envs have no success metric
         return state.metrics["success"] > 0 if "success" in state.metrics else jnp.zeros(episodes, bool)
 
-    def body(carry, k):
-        s, ret, alive, length, wins = carry
-        s = jax.vmap(env.step)(s, policy(s.obs, k))
+    keys = jax.random.split(k_run, horizon)  # step i's key, however many steps run
+
+    def body(carry):
+        i, s, ret, alive, length, wins = carry
+        s = jax.vmap(env.step)(s, policy(s.obs, keys[i]))
         ret = ret + jnp.where(alive, s.reward, 0.0)  # where, not multiply: a finished episode may hold NaNs
         length = length + alive.astype(jnp.int32)
         wins = wins + jnp.logical_and(alive, success(s)).astype(jnp.int32)
-        return (s, ret, jnp.logical_and(alive, s.done == 0), length, wins), None
+        return i + 1, s, ret, jnp.logical_and(alive, s.done == 0), length, wins
 
+    # The loop ends when every episode has ended (or at the horizon): a step after that changes no statistic, so the
+    # result equals a full-horizon scan's while policies that fall early cost only their episodes' steps (under a
+    # grid's vmap, the longest episode of the grid's).
     zeros = jnp.zeros(episodes, jnp.int32)
-    init = (s, jnp.zeros(episodes), jnp.ones(episodes, bool), zeros, zeros)
-    (_, ret, _, length, wins), _ = lax.scan(body, init, jax.random.split(k_run, horizon))
+    init = (jnp.zeros((), jnp.int32), s, jnp.zeros(episodes), jnp.ones(episodes, bool), zeros, zeros)
+    _, _, ret, _, length, wins = lax.while_loop(lambda c: (c[0] < horizon) & jnp.any(c[3]), body, init)
     return EpisodeStats(ret, length, wins)
