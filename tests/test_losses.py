@@ -227,3 +227,24 @@ def test_tanh_log_prob_is_stable_for_large_u():
 
     _, _, logp = sample_tanh_gaussian(jax.random.PRNGKey(0), jnp.full((1, 2), 30.0), jnp.full((1, 2), -5.0))
     assert np.all(np.isfinite(np.asarray(logp)))
+
+
+def test_sac_update_reports_the_numpy_losses_with_pibar_computed_once():
+    """``sac.update`` runs π̄ once on [s′; s] and hands each loss its half: the critic and actor losses it reports
+    equal the NumPy references (π̄ at s′ in the backup, at s in the penalty; s and s′ distinct, so a swapped half
+    fails). The update splits its key (critic, actor) as ``jax.random.split`` does."""
+    cfg, nets, hp, lrn, batch = _setup("sac")
+    key, alpha = jax.random.PRNGKey(9), 1.3
+    _, info = sac.update(lrn, batch, key, alpha, hp, nets, cfg, jnp.int32(0))
+    k_critic, k_actor = jax.random.split(key)
+    eps_c = np.asarray(jax.random.normal(k_critic, (B, ACT)), np.float64)
+    expected = ref.sac_critic_loss(lrn.actor, lrn.critic, lrn.critic_target, lrn.pibar, float(lrn.log_alpha_sac),
+                                   batch, eps_c, alpha, 0.9, True, True)
+    np.testing.assert_allclose(float(info["critic_loss"]), expected, rtol=2e-5)
+    # The actor's loss is taken against the critic after its step: the same step, from the update's own output.
+    critic = sac.actor_critic_step(lrn, lambda c: sac.critic_loss(c, lrn, batch, k_critic, alpha, hp, nets, cfg),
+                                   lambda a, c: (jnp.zeros(()), {"log_prob": jnp.zeros(B)}), 0.0, 0.0)[0].critic
+    eps_a = np.asarray(jax.random.normal(k_actor, (B, ACT)), np.float64)
+    a_expected = ref.sac_actor_loss(lrn.actor, critic, lrn.pibar, float(lrn.log_alpha_sac), batch.observations,
+                                    eps_a, alpha, True)
+    np.testing.assert_allclose(float(info["actor_loss"]), a_expected, rtol=2e-5)

@@ -39,7 +39,7 @@ def actor_q(q: jax.Array, cfg: FinetuneConfig) -> jax.Array:
 
 def critic_loss(
     critic, learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
-    nets: Networks, cfg: FinetuneConfig,
+    nets: Networks, cfg: FinetuneConfig, pibar_next: tuple[jax.Array, jax.Array] | None = None,
 ):
     """Critic loss with the PROTO backup (Eq. 3).
 
@@ -47,7 +47,7 @@ def critic_loss(
     where Q̄ is min (or mean, or a random member: ``target_q``) over the target ensemble. Without
     ``value_reg_backup`` (the paper's AntMaze and Adroit setting) the bracket is Q̄(s′, a′) alone: the reference
     code's ``entropy_backup=False`` drops SAC's entropy term together with the PROTO term. Loss = mean over ensemble
-    members and batch of (Q_i(s, a) − y)².
+    members and batch of (Q_i(s, a) − y)². ``pibar_next``: π̄'s (mean, log σ) at s′ when already computed.
     """
     mean, log_std = nets.actor.apply(learner.actor, batch.next_observations)
     a_next, u_next, logp_next = nets.policy.sample(key, mean, log_std)
@@ -56,7 +56,7 @@ def critic_loss(
                       jax.random.fold_in(key, 1))
     v_next = q_next - jnp.exp(learner.log_alpha_sac) * logp_next if cfg.value_reg_backup else q_next
     if cfg.regularizer and cfg.value_reg_backup:
-        mean_bar, log_std_bar = nets.actor.apply(learner.pibar, batch.next_observations)
+        mean_bar, log_std_bar = pibar_next or nets.actor.apply(learner.pibar, batch.next_observations)
         v_next = v_next - alpha * kl_penalty(u_next, mean, log_std, mean_bar, log_std_bar)
     target = lax.stop_gradient(batch.rewards + hp.gamma * (1.0 - batch.terminals) * v_next)
     q = nets.critic.apply(critic, batch.observations, batch.actions)
@@ -66,14 +66,14 @@ def critic_loss(
 
 def actor_loss(
     actor, critic, learner: Learner, obs: jax.Array, key: jax.Array, alpha: jax.Array,
-    nets: Networks, cfg: FinetuneConfig,
+    nets: Networks, cfg: FinetuneConfig, pibar_now: tuple[jax.Array, jax.Array] | None = None,
 ):
     """Actor loss with the PROTO penalty (Eq. 4): E[α_sac log π(a|s) + α (log π(a|s) − log π̄(a|s)) − Q(s, a)],
-    Q the ensemble's min or mean (``actor_q``)."""
+    Q the ensemble's min or mean (``actor_q``). ``pibar_now``: π̄'s (mean, log σ) at s when already computed."""
     mean, log_std = nets.actor.apply(actor, obs)
     a, u, logp = nets.policy.sample(key, mean, log_std)
     if cfg.regularizer:
-        mean_bar, log_std_bar = nets.actor.apply(learner.pibar, obs)
+        mean_bar, log_std_bar = pibar_now or nets.actor.apply(learner.pibar, obs)
         kl = kl_penalty(u, mean, log_std, lax.stop_gradient(mean_bar), lax.stop_gradient(log_std_bar))
     else:
         kl = jnp.zeros_like(logp)
@@ -90,9 +90,16 @@ def update(
     """One PROTO-SAC gradient step: critic, actor (against the new critic), temperature, target Q̄ and π̄ Polyak."""
     del step  # SAC updates every component every step
     k_critic, k_actor = jax.random.split(key)
+    pibar_next = pibar_now = None
+    if cfg.regularizer and cfg.value_reg_backup:
+        # π̄ at s′ (backup) and at s (actor penalty) in one forward pass: π̄ changes only after both steps.
+        n = batch.observations.shape[0]
+        stats = nets.actor.apply(learner.pibar, jnp.concatenate([batch.next_observations, batch.observations]))
+        pibar_next, pibar_now = tuple(x[:n] for x in stats), tuple(x[n:] for x in stats)
     learner, c_info, a_info, t_loss = actor_critic_step(
-        learner, lambda critic: critic_loss(critic, learner, batch, k_critic, alpha, hp, nets, cfg),
-        lambda actor, critic: actor_loss(actor, critic, learner, batch.observations, k_actor, alpha, nets, cfg),
+        learner, lambda critic: critic_loss(critic, learner, batch, k_critic, alpha, hp, nets, cfg, pibar_next),
+        lambda actor, critic: actor_loss(actor, critic, learner, batch.observations, k_actor, alpha, nets, cfg,
+                                         pibar_now),
         hp.target_entropy_scale * batch.actions.shape[-1], hp.target_tau, cfg.fidelity.temperature_loss)
     if cfg.regularizer:
         learner = learner.replace(pibar=polyak(learner.actor, learner.pibar, hp.tau))
