@@ -22,13 +22,14 @@ STEPS = (100, 200, 300, 1000)  # the first 10% of a 1000-step run holds the eval
 
 def load_module(name: str = "results_md"):
     """proto_brax.analysis.results_md, or the driver benchmarks/NAME.py as a module (registered before it runs: its
-    dataclass needs its module)."""
+    dataclass needs its module), after the script's own first import ``_quiet``, as running the script finds it."""
     if name == "results_md":
         return importlib.import_module("proto_brax.analysis.results_md")
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
+    for module in ("_quiet", name):
+        if module not in sys.modules:
+            spec = importlib.util.spec_from_file_location(module, ROOT / "benchmarks" / f"{module}.py")
+            sys.modules[module] = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(sys.modules[module])
     return sys.modules[name]
 
 
