@@ -59,6 +59,22 @@ def method_config(name: str, args: Args):
     return dataclasses.replace(cfg, eval_episodes=1, episode_length=10), sa
 
 
+def random_bundle(cfg, env, hp):
+    """None (a random init), or for a method that carries the critic's pretraining state (the official variants) a
+    random bundle holding one: costs do not depend on the weights."""
+    if not cfg.fidelity.carry_critic_state:
+        return None
+    from proto_brax.agents.common import adam
+    from proto_brax.agents.learner import Pretrained
+    from proto_brax.networks import make_networks
+
+    nets = make_networks(cfg.net, env.action_size)
+    obs, act = jnp.zeros((1, env.observation_size)), jnp.zeros((1, env.action_size))
+    critic = nets.critic.init(jax.random.PRNGKey(2), obs, act)
+    return Pretrained(actor=nets.actor.init(jax.random.PRNGKey(3), obs), critic=critic, critic_target=critic,
+                      critic_opt=adam(hp.lr_critic).init(critic))
+
+
 def main(args: Args) -> dict:
     rows = args.chunk_steps * 50
     groups: dict = {}
@@ -75,7 +91,7 @@ def main(args: Args) -> dict:
         if data is not None and agent(cfg.algo).mc_returns:
             data = with_returns_to_go(jax.device_get(data), 0.99)
         hp = HParams.create(**g["hp"])
-        state = jax.jit(ft.init)(hp, jax.random.PRNGKey(1), None, data)
+        state = jax.jit(ft.init)(hp, jax.random.PRNGKey(1), random_bundle(cfg, env, hp), data)
         log(f"compiling {g['methods']} ({cfg.algo}, sampling {cfg.sampling}, regularizer {cfg.regularizer})")
         compiled, compile_s = aot(ft.chunk, state, hp, data, jnp.int32(0), donate_argnums=(0,))
 
