@@ -9,8 +9,8 @@ through ``train.grid.run_grid`` with a callback that times, per chunk after the 
 
 * ``chunk_s``: the compiled chunk (its ``eval_every`` training steps and the evaluation at its end) until its metrics
   are on the host;
-* ``eval_s``: the same evaluation alone (the grid's π evaluation program on the chunk's final state, timed apart; its
-  share of ``chunk_s``);
+* ``eval_s``: the same evaluation alone (the grid's own evaluation program, ``GridProgram.initial_eval``, on the
+  chunk's final state, timed apart; its share of ``chunk_s``);
 * ``rows_s``: metrics rows built and appended to ``metrics.jsonl``, as ``sweep.execute`` does;
 * ``save_s``: the resume checkpoint (``checkpoints.save_step`` of the whole grid state, replay buffers included).
 
@@ -64,7 +64,6 @@ def main(args: Args) -> dict:
         sweep._prepare_out(sa, plan.config)
         mesh = grid_mesh()
         program = compile_grid(plan.ft, mesh, plan.per_run)
-        evaluate = jax.jit(jax.vmap(lambda s: plan.ft.evaluate(s.learner, jax.random.fold_in(s.key, 1))))
         timing = {k: [] for k in ("chunk_s", "eval_s", "rows_s", "save_s")}
         clock = {"t": time.perf_counter()}
 
@@ -76,9 +75,8 @@ def main(args: Args) -> dict:
             t1 = time.perf_counter()
             checkpoints.save_step(Path(sa.out) / "state", c + 1, state, {"chunks_done": c + 1})
             t2 = time.perf_counter()
-            jax.block_until_ready(evaluate(state))  # compiled in chunk 0, which is not counted
-            t3 = time.perf_counter()
-            jax.block_until_ready(evaluate(state))
+            t3 = time.perf_counter()  # (chunk 0, which is not counted, includes its compilation)
+            jax.block_until_ready(program.initial_eval(state))
             eval_s = time.perf_counter() - t3
             print(f"chunk {c}: {chunk_s:.2f} s (evaluation {eval_s:.2f} s), rows {t1 - t0:.3f} s, checkpoint "
                   f"{t2 - t1:.3f} s", flush=True)

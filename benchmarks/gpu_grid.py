@@ -102,7 +102,4 @@ def main(args: Args) -> dict:
 
 
 if __name__ == "__main__":
-    from proto_brax.startup import quiet_start
-
-    quiet_start()
     main(tyro.cli(Args))

@@ -53,9 +53,9 @@ def run_episode_stats(
         wins = wins + jnp.logical_and(alive, success(s)).astype(jnp.int32)
         return i + 1, s, ret, jnp.logical_and(alive, s.done == 0), length, wins
 
-    # The loop ends when every episode has ended (or at the horizon): a step after that changes no statistic, so the
-    # result equals a full-horizon scan's while policies that fall early cost only their episodes' steps (under a
-    # grid's vmap, the longest episode of the grid's).
+    # The loop ends when every episode has ended (or at the horizon). A step after that changes no statistic, so the
+    # result equals a full-horizon scan's, while policies that fall early cost only their episodes' steps (under a
+    # grid's vmap: the steps of the grid's longest episode).
     zeros = jnp.zeros(episodes, jnp.int32)
     init = (jnp.zeros((), jnp.int32), s, jnp.zeros(episodes), jnp.ones(episodes, bool), zeros, zeros)
     _, _, ret, _, length, wins = lax.while_loop(lambda c: (c[0] < horizon) & jnp.any(c[3]), body, init)
