@@ -27,12 +27,13 @@ import _quiet  # noqa: F401  (first: the quiet start)
 import jax
 import jax.numpy as jnp
 import tyro
-from throughput import Case, aot, log, run_interleaved, synthetic_transitions, versions, write_json_atomic
+from throughput import Case, aot, log, run_interleaved, synthetic_transitions, versions
 
 from proto_brax import envs, sweep
 from proto_brax.agents.registry import METHODS, agent
 from proto_brax.config import HParams
 from proto_brax.data.dataset import with_returns_to_go
+from proto_brax.files import strict_json, write_json_atomic
 from proto_brax.train.online import make_finetune
 
 
@@ -115,7 +116,7 @@ def main(args: Args) -> dict:
                "args": dataclasses.asdict(args), "machine": platform.processor() or platform.machine(),
                "loadavg_end": list(os.getloadavg()),
                "versions": versions(), "results": results}
-    write_json_atomic(args.out, payload)
+    write_json_atomic(args.out, strict_json(payload))
     log(f"wrote {args.out}")
     return payload
 

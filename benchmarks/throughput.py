@@ -9,12 +9,12 @@ Everything runs in ONE process with two host CPU devices (``use_host_devices(2)`
 
 1. PROTO-SAC vs plain SAC update cost (halfcheetah sizes 17/6, MLP 2x256, batch 256): a jitted ``lax.scan`` of N
    (symmetric replay sample + ``sac.update``) with ``regularizer=True`` vs ``False``.
-   Goal: time(PROTO) / time(SAC) <= 1.12.
+   Goal: time(PROTO) / time(SAC) <= 1.10.
 2. Achieved GFLOP/s of one PROTO-SAC update (FLOPs from XLA's cost analysis / measured seconds per update) vs the
-   GFLOP/s of a chain of large f32 matmuls measured in the same process. Goal: achieved / matmul >= 0.8.
+   GFLOP/s of a chain of large f32 matmuls measured in the same process. Goal: achieved / matmul >= 0.6 (0.8 long-term).
 3. Grid scaling of the full online step on hopper (11/3): total updates/s of (a) one run alone (jit of the single-run
    chunk on one device), (b) a G-run grid vmapped on one device, (c) the same grid vmapped and sharded over both host
-   devices. Goal: (b) / (a) >= 1.2 and (c) / (a) >= 1.2.
+   devices. Goal: (b) / (a) >= 1.2 and (c) / (a) >= 1.5.
 4. Full online step vs update alone on hopper: seconds per env step of (a) / seconds per update of the update-alone
    scan at hopper sizes (same networks, batch, sampling). Goal <= 1.15.
 
@@ -32,7 +32,6 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import inspect
-import json
 import math
 import os
 import platform
@@ -55,7 +54,7 @@ from proto_brax.agents.registry import agent
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.data.replay import replay_init, replay_insert, replay_sample
-from proto_brax.files import atomic_write
+from proto_brax.files import strict_json, write_json_atomic
 from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train.grid import (
     compile_grid,
@@ -70,11 +69,11 @@ from proto_brax.train.grid import (
 )
 from proto_brax.train.online import make_finetune
 
-GOALS = {
-    "proto_vs_sac_time_ratio": ("<=", 1.12),
-    "achieved_vs_matmul_gflops_ratio": (">=", 0.8),
+GOALS = {  # issue 37's goals (the FLOP/s ratio's long-term goal is 0.8; the sharded 8-run grid is the sweep's program)
+    "proto_vs_sac_time_ratio": ("<=", 1.10),
+    "achieved_vs_matmul_gflops_ratio": (">=", 0.6),
     "grid_vmap_1dev_vs_single_ratio": (">=", 1.2),
-    "grid_vmap_sharded_vs_single_ratio": (">=", 1.2),
+    "grid_vmap_sharded_vs_single_ratio": (">=", 1.5),
     "online_step_vs_update_time_ratio": ("<=", 1.15),
 }
 
@@ -347,24 +346,6 @@ def verdict(name: str, value: float | None) -> str:
     return "PASS" if ok else "FAIL"
 
 
-def jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [jsonable(v) for v in x]
-    if isinstance(x, (np.floating, np.integer)):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
-
-
-def write_json_atomic(path: str, payload: dict) -> None:
-    with atomic_write(path) as f:
-        json.dump(jsonable(payload), f, indent=2, allow_nan=False)
-        f.write("\n")
-
-
 def versions() -> dict:
     import importlib.metadata as md
 
@@ -503,17 +484,17 @@ def main(args: Args) -> dict:
     rows = [
         ("1  PROTO-SAC updates/s (halfcheetah)", f"{proto.rate:.1f}", "", ""),
         ("1  SAC updates/s (halfcheetah)", f"{plain.rate:.1f}", "", ""),
-        ("1  time PROTO / time SAC", f"{ratio1:.3f}", "<= 1.12", goals["proto_vs_sac_time_ratio"]["verdict"]),
+        ("1  time PROTO / time SAC", f"{ratio1:.3f}", "<= 1.10", goals["proto_vs_sac_time_ratio"]["verdict"]),
         ("2  MFLOP per PROTO update (XLA)", f"{flops_per_update / 1e6:.1f}" if flops_per_update else "n/a", "", ""),
         ("2  achieved GFLOP/s (PROTO update)", f"{achieved:.1f}" if achieved else "n/a", "", ""),
         (f"2  matmul GFLOP/s ({sizes.matmul_n}^3 x {sizes.matmul_chain})", f"{mm_gflops:.1f}", "", ""),
-        ("2  achieved / matmul", f"{ratio2:.3f}" if ratio2 is not None else "n/a", ">= 0.8",
+        ("2  achieved / matmul", f"{ratio2:.3f}" if ratio2 is not None else "n/a", ">= 0.6",
          goals["achieved_vs_matmul_gflops_ratio"]["verdict"]),
         ("3a single run updates/s (hopper, full step)", f"{single.rate:.1f}", "", ""),
         (f"3b grid {sizes.grid_size} vmapped 1 dev, total updates/s", f"{grid1.rate:.1f}", "", ""),
         (f"3c grid {sizes.grid_size} sharded {len(devices)} dev, total updates/s", f"{grid_all.rate:.1f}", "", ""),
         ("3b grid(1 dev) / single", f"{ratio3b:.3f}", ">= 1.2", goals["grid_vmap_1dev_vs_single_ratio"]["verdict"]),
-        ("3c grid(sharded) / single", f"{ratio3c:.3f}", ">= 1.2",
+        ("3c grid(sharded) / single", f"{ratio3c:.3f}", ">= 1.5",
          goals["grid_vmap_sharded_vs_single_ratio"]["verdict"]),
         ("4  update alone updates/s (hopper)", f"{upd_hop.rate:.1f}", "", ""),
         ("4  s/env step / s/update", f"{ratio4:.3f}", "<= 1.15", goals["online_step_vs_update_time_ratio"]["verdict"]),
@@ -521,7 +502,7 @@ def main(args: Args) -> dict:
     env_info["loadavg_end"] = list(os.getloadavg())
     env_info["total_wall_s"] = time.perf_counter() - t_start
     payload = {"environment": env_info, "goals": goals, "results": results}
-    write_json_atomic(args.out, payload)
+    write_json_atomic(args.out, strict_json(payload))  # NaN -> null: strict JSON
 
     w = max(len(r[0]) for r in rows)
     print()

@@ -129,7 +129,8 @@ def test_results_page_states_the_claims_with_numbers(published):
     readme = published / "README.md"
     readme.write_text(f"intro\n{mod.README_BEGIN}\nstale numbers\n{mod.README_END}\nafter\n")
     args = mod.Args(results=published / "locomotion", cost=published / "cost.json", bundles=published / "none",
-                    record=published / "datasets.json", out=published / "RESULTS.md", readme=readme)
+                    record=published / "datasets.json", out=published / "RESULTS.md", readme=readme,
+                    overhead=published / "none.json")
     mod.main(args)
     text = args.out.read_text()
     # the README's block: RESULTS.md's coverage and claim paragraphs, nothing else of the README touched
@@ -177,6 +178,26 @@ def test_results_page_states_the_claims_with_numbers(published):
         assert f"![{dataset} learning curves](results/locomotion/{dataset}/curves.png)" in text
 
 
+def test_claim_3_takes_its_ratio_from_the_dedicated_overhead_measurement_with_its_spread(published, tmp_path):
+    mod = load_module()
+    # interleaved repetitions: PROTO 10.5, 12, 9 s against SAC 10, 10, 10 s -> per repetition 1.05, 1.20, 0.90
+    overhead = {"command": "python benchmarks/methods_cost.py --reps 3", "date": "later", "status": "dedicated",
+                "results": {"proto-sac": {"seconds_per_1e5_steps": 105.0, "times_s": [10.5, 12.0, 9.0]},
+                            "sac-scratch": {"seconds_per_1e5_steps": 100.0, "times_s": [10.0, 10.0, 10.0]}}}
+    (tmp_path / "overhead.json").write_text(json.dumps(overhead))
+    args = mod.Args(results=published / "locomotion", cost=published / "cost.json", bundles=published / "none",
+                    record=published / "datasets.json", out=tmp_path / "RESULTS.md", readme=None,
+                    overhead=tmp_path / "overhead.json")
+    mod.main(args)
+    text = args.out.read_text()
+    assert ("wall time per online step = 1.05 (`python benchmarks/methods_cost.py --reps 3`, later; dedicated; "
+            "per-repetition ratios 0.90–1.20)." in text)
+    assert "= 1.10" not in text and "| proto-sac | 110 |" in text  # the cost table still shows the full run
+    sac_only = {"results": {"sac-scratch": overhead["results"]["sac-scratch"]}}  # lacks PROTO: the table's run
+    (tmp_path / "overhead.json").write_text(json.dumps(sac_only))
+    assert mod.claim_cost(args)["status"] == "test"
+
+
 def test_a_readme_without_the_markers_is_refused_before_anything_is_written(published, tmp_path):
     mod = load_module()
     readme = tmp_path / "README.md"
@@ -184,7 +205,8 @@ def test_a_readme_without_the_markers_is_refused_before_anything_is_written(publ
     results = tmp_path / "locomotion"  # a copy without the plots, to see that none is written
     shutil.copytree(published / "locomotion", results, ignore=shutil.ignore_patterns("*.png", "aggregate.json"))
     args = mod.Args(results=results, cost=published / "cost.json", bundles=published / "none",
-                    record=published / "datasets.json", out=tmp_path / "RESULTS.md", readme=readme)
+                    record=published / "datasets.json", out=tmp_path / "RESULTS.md", readme=readme,
+                    overhead=published / "none.json")
     with pytest.raises(SystemExit, match="lacks the lines"):
         mod.main(args)
     assert not args.out.exists() and "no begin marker" in readme.read_text()
@@ -260,7 +282,8 @@ def test_a_dataset_free_sweep_is_shared_by_its_envs_datasets_and_counted_once(tm
     assert (copy / "metrics.jsonl.gz").read_bytes() == (results / "hopper-medium" / "sac-scratch" /
                                                         "metrics.jsonl.gz").read_bytes()
     out = tmp_path / "RESULTS.md"
-    mod.main(mod.Args(results=results, cost=tmp_path / "none.json", bundles=tmp_path / "none", out=out, readme=None))
+    mod.main(mod.Args(results=results, cost=tmp_path / "none.json", bundles=tmp_path / "none", out=out, readme=None,
+                      overhead=tmp_path / "none.json"))
     text = out.read_text()
     assert "| sac-scratch | 1 | 3 | 11.0 [" in text and "| proto-sac | 2 | 6 |" in text
     assert text.count("| sac-scratch | – | 30.0 | 2.0 | 11.0 ± 0.8 |") == 2  # one row in each hopper table
