@@ -370,3 +370,31 @@ def test_pre_fix_proto_td3_sweeps_are_named_and_marked():
     assert rmd.label("proto-td3", table["b-medium"]["proto-td3"], "b-medium", before) == "proto-td3"
     assert rmd.label("proto-sac", sweep(41.5), "a-medium", before) == "proto-sac"
     assert rmd.td3_fix_status({"b-medium": {"proto-td3": sweep(47.25)}}, before) == []
+
+
+def test_rounding_check_tells_overlapping_final_cis_from_separate_ones(tmp_path):
+    mod = load_module("rounding_check")
+
+    def sweep(name: str, finals: list[tuple[float, float, float]]) -> Path:
+        points = [{"tau": tau, "final_normalized_score": {"iqm": (lo + hi) / 2, "iqm_low": lo, "iqm_high": hi,
+                                                          "mean": (lo + hi) / 2, "std": 1.0}}
+                  for tau, lo, hi in finals]
+        d = tmp_path / name
+        d.mkdir()
+        (d / "summary.json").write_text(json.dumps({"grid_keys": ["tau"], "points": points}))
+        (d / "config.json").write_text(json.dumps({"dataset_vs_bundle": name}))
+        return d
+
+    published = sweep("published", [(0.0, 60.0, 70.0), (0.005, 80.0, 90.0)])
+    touching = sweep("touching", [(0.0, 70.0, 75.0), (0.005, 70.0, 80.0)])  # CIs meeting at one end still overlap
+    apart = sweep("apart", [(0.0, 50.0, 59.9), (0.005, 85.0, 86.0)])
+    out = tmp_path / "rc.json"
+    result = mod.main(mod.Args(new=touching, published=published, out=out))
+    assert [r["ci_overlap"] for r in result["rows"]] == [True, True] and result["all_final_cis_overlap"]
+    result = mod.main(mod.Args(new=apart, published=published, out=out))
+    assert [r["ci_overlap"] for r in result["rows"]] == [False, True] and not result["all_final_cis_overlap"]
+    assert json.loads(out.read_text())["dataset_vs_bundle"] == {"new": "apart", "published": "published"}
+    other_grid = sweep("other", [(0.01, 60.0, 70.0), (0.005, 80.0, 90.0)])
+    with pytest.raises(SystemExit, match="grids differ"):
+        mod.compare(json.loads((other_grid / "summary.json").read_text()),
+                    json.loads((published / "summary.json").read_text()))
