@@ -52,8 +52,11 @@ class Args:
     max_geom_pairs: int | None = None
     """MJX contact bound (custom numeric); None = unbounded, the env's default."""
     max_contact_points: int | None = None
-    """MJX contact bound (custom numeric); None = unbounded, the env's default."""
+    """MJX contact bound (custom numeric); None = the env's default (``adroit.MAX_CONTACT_POINTS``), 0 = unbounded."""
     out: Path = ROOT / "benchmarks" / "results" / "adroit_check.json"
+    baseline: bool = True
+    """Also time (interleaved, batch 1) and cross-check the env as it was before the contact bound and the sensor
+    pruning (``max_contact_points=None, all_sensors=True``)."""
     merge: bool = False
     """Keep the other tasks already in ``out`` (re-run one task without losing the rest)."""
 
@@ -144,6 +147,8 @@ def check_task(task: str, args: Args) -> dict:
     spec = adroit.get_task(task)
     xml_kwargs = {k: v for k, v in (("max_geom_pairs", args.max_geom_pairs),
                                     ("max_contact_points", args.max_contact_points)) if v is not None}
+    if xml_kwargs.get("max_contact_points") == 0:
+        xml_kwargs["max_contact_points"] = None  # unbounded
     env = adroit.Adroit(task, **xml_kwargs)
     own = np.asarray(getattr(env.sys, env._layout_field))[env._layout_body]
     layout = np.asarray(adroit.sample_layout(task, jax.random.PRNGKey(args.seed), jnp.asarray(own)), np.float64)
@@ -156,16 +161,20 @@ def check_task(task: str, args: Args) -> dict:
     nudge = np.random.default_rng(args.seed + 7).choice([-1e-6, 1e-6], actions.shape)
     nudged = native_rollout(task, adroit.load_original_model(task), layout, actions + nudge)
 
-    def rollout(layout, actions):
-        s = env.reset_to(layout, env.sys.qpos0, jnp.zeros(env.sys.nv))
+    def make_rollout(env):
+        def rollout(layout, actions):
+            s = env.reset_to(layout, env.sys.qpos0, jnp.zeros(env.sys.nv))
 
-        def body(s, a):
-            s = env.step(s, a)
-            return s, (s.obs, s.reward, s.pipeline_state.qpos, s.done)
+            def body(s, a):
+                s = env.step(s, a)
+                return s, (s.obs, s.reward, s.pipeline_state.qpos, s.done)
 
-        _, (obs, rew, qpos, done) = jax.lax.scan(body, s, actions)
-        return (jnp.concatenate([s.obs[None], obs]), rew, jnp.concatenate([s.pipeline_state.qpos[None], qpos]),
-                done)
+            _, (obs, rew, qpos, done) = jax.lax.scan(body, s, actions)
+            return (jnp.concatenate([s.obs[None], obs]), rew,
+                    jnp.concatenate([s.pipeline_state.qpos[None], qpos]), done)
+        return rollout
+
+    rollout = make_rollout(env)
 
     def timed(fn, *xs):
         t0 = time.perf_counter()
@@ -184,6 +193,22 @@ def check_task(task: str, args: Args) -> dict:
     mjx = tuple(np.asarray(x, np.float64) for x in out[:3])
     speed = {"batch1": {"compile_s": compile_s, "seconds_per_call": times,
                         "control_steps_per_s": args.steps / statistics.median(times)}}
+    baseline = None
+    if args.baseline:  # the env before the contact bound and sensor pruning, timed interleaved with today's
+        old = adroit.Adroit(task, **{**xml_kwargs, "max_contact_points": None, "all_sensors": True})
+        old_c = jax.jit(make_rollout(old)).lower(layout32, actions32).compile()
+        new_c = jax.jit(rollout).lower(layout32, actions32).compile()
+        old_out = jax.block_until_ready(old_c(layout32, actions32))
+        pair = {"baseline": [], "env": []}
+        for _ in range(args.reps):
+            for name, c in (("baseline", old_c), ("env", new_c)):
+                t0 = time.perf_counter()
+                jax.block_until_ready(c(layout32, actions32))
+                pair[name].append(time.perf_counter() - t0)
+        rate = {k: args.steps / statistics.median(v) for k, v in pair.items()}
+        speed["batch1_interleaved"] = {"seconds_per_call": pair, "control_steps_per_s": rate,
+                                       "env_over_baseline": rate["env"] / rate["baseline"]}
+        baseline = compare(tuple(np.asarray(x, np.float64) for x in old_out[:3]), capsule)
     if args.batch:
         keys = jax.random.split(jax.random.PRNGKey(args.seed + 1), args.batch)
         layouts = jax.vmap(lambda k: adroit.sample_layout(task, k, jnp.asarray(own, jnp.float32)))(keys)
@@ -201,6 +226,7 @@ def check_task(task: str, args: Args) -> dict:
         "nudged_vs_original_native": compare(nudged, original),
         "capsule_vs_original_native": compare(capsule, original),
         "mjx_vs_native_capsule": compare(mjx, capsule),
+        "mjx_baseline_vs_native_capsule": baseline,
         "mjx_done_any": bool(np.asarray(out[3]).any()),
         "speed": speed,
     }
@@ -257,8 +283,10 @@ def main(args: Args) -> dict:
           f"{'excursion':>9}")
     for task, r in result["tasks"].items():
         for name in ("gym_vs_native_original", "nudged_vs_original_native", "capsule_vs_original_native",
-                     "mjx_vs_native_capsule"):
-            c = r[name]
+                     "mjx_vs_native_capsule", "mjx_baseline_vs_native_capsule"):
+            c = r.get(name)
+            if c is None:
+                continue
             print(f"{task:7} {name:28} {c['max_abs_obs']:10.2e} {c['max_abs_qpos']:10.2e} "
                   f"{c['max_abs_reward']:10.2e} {c['max_abs_obs_first10']:9.1e} {c['qpos_excursion']:9.2f}")
     # each task's vmapped batch as it was measured (--merge keeps tasks measured with another --batch)
@@ -270,6 +298,12 @@ def main(args: Args) -> dict:
         print(f"{task:7} {s['batch1']['control_steps_per_s']:8.1f} {vmapped:>14} "
               f"{s['native_gymnasium']['control_steps_per_s']:8.0f}  ({s['batch1']['compile_s']:.0f}, "
               f"{b.get('compile_s', float('nan')):.0f})")
+    for task, r in result["tasks"].items():
+        inter = r["speed"].get("batch1_interleaved")
+        if inter:
+            rate = inter["control_steps_per_s"]
+            print(f"{task:7} interleaved b1: unbounded, all sensors {rate['baseline']:.1f} -> env {rate['env']:.1f} "
+                  f"control steps/s ({inter['env_over_baseline']:.2f}x)")
     print(f"wrote {args.out}")
     return result
 

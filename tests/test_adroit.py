@@ -66,6 +66,32 @@ def test_capsule_xml_has_no_cylinders_and_loads_in_mjx(task):
 
 
 @pytest.mark.parametrize("task", TASKS)
+def test_mjx_keeps_the_deepest_contacts_per_condim_group_and_only_the_sensors_read(task):
+    from mujoco.mjx._src.collision_driver import make_condim
+
+    unbounded = adroit.load_capsule_model(task, max_contact_points=None, all_sensors=True)
+    model = adroit.load_capsule_model(task)
+    groups = np.unique(make_condim(unbounded), return_counts=True)[1]
+    slots = mjx.make_data(mjx.put_model(model))._impl.contact.dist.shape[0]
+    assert slots == sum(min(n, adroit.MAX_CONTACT_POINTS) for n in groups) < sum(groups)
+    assert mjx.make_data(mjx.put_model(unbounded))._impl.contact.dist.shape[0] == sum(groups)
+    kept = [model.sensor(i).name for i in range(model.nsensor)]
+    assert kept == list(adroit.USED_SENSORS[task]) and unbounded.nsensor > 60
+    # Sensors do not act: 20 native control steps give the same physics bit for bit, and the kept sensor's readings.
+    ctrl = np.random.default_rng(0).uniform(*model.actuator_ctrlrange.T, (20, model.nu))
+    runs = []
+    for m in (unbounded, model):
+        d = mujoco.MjData(m)
+        rows = []
+        for c in ctrl:
+            d.ctrl[:] = c
+            mujoco.mj_step(m, d, nstep=adroit.FRAME_SKIP)
+            rows.append(np.concatenate([d.qpos, d.qvel, formulas(task, adroit.task_ids(task, m), d, np)[0]]))
+        runs.append(np.array(rows))
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
+@pytest.mark.parametrize("task", TASKS)
 def test_observation_reward_success_match_gymnasium(task):
     env = gym_env(task)
     ids = adroit.task_ids(task, adroit.load_capsule_model(task))

@@ -55,7 +55,10 @@ steps); PROTO-style results on pen are therefore on a modified pen task, and D4R
 from the cylinder pen. The door moves 3 cm at most (100x the floor) and ends with nearly the same return. Flat discs
 (the nail head r 0.035, half-height 0.005) become capsules 0.08 tall — a crude shape for the hammer's target that
 random actions never touch, so this check cannot see it. MJX compile of one 50-step rollout took 8-13 min under that
-load. MJX is unbounded here (no ``max_geom_pairs`` / ``max_contact_points``): bounding it was not measured.
+load. Since 2026-12-06 MJX keeps the 24 deepest contacts per condim group (``MAX_CONTACT_POINTS``) and computes only
+the sensors the observations read (``USED_SENSORS``): the cross-check's errors are unchanged to the printed digits, and
+a batch-1 rollout (interleaved with the unbounded, all-sensor env, beside one single-core sweep) went from 114 to 147
+control steps/s (pen), 58 to 108 (door) and 45 to 130 (hammer); native gymnasium-robotics steps 2100-3000.
 """
 
 from __future__ import annotations
@@ -72,6 +75,17 @@ from brax.envs.base import PipelineEnv, State
 from brax.io import mjcf
 
 FRAME_SKIP = 5  # gymnasium-robotics Adroit frame_skip
+# MJX keeps a contact slot for every candidate geom pair (124 pen, 279 door, 230 hammer: 220-449 slots) and solves
+# them all every physics step, touching or not; native MuJoCo saw at most 9 (pen, hammer) and 17 (door) contacts at
+# once over 20 random-action episodes of 200 steps. Keeping the 24 deepest per condim group (MJX's
+# ``max_contact_points``) left the 50-step cross-check's MJX-vs-native error unchanged to 1e-6 (door 0.0526, pen 0.168,
+# hammer 0.0029) and sped a batch-1 rollout up 1.2x (pen) to 3x (door) (docs/MEASUREMENTS.md). Bounding the
+# broad phase too (``max_geom_pairs`` 16 or 32) raised the door's error tenfold: neighbouring finger capsules always
+# overlap in bounding spheres, so the nearest-pairs cull drops real contacts. Left unbounded.
+MAX_CONTACT_POINTS = 24
+# Sensors the observations read: MJX computes every sensor on every physics step (65 on the door: ~10% of a step),
+# and no sensor acts on the physics.
+USED_SENSORS = {"pen": (), "door": (), "hammer": ("S_nail",)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,16 +163,18 @@ def adroit_xml(
     task: str,
     *,
     max_geom_pairs: int | None = None,
-    max_contact_points: int | None = None,
+    max_contact_points: int | None = MAX_CONTACT_POINTS,
     solver_iterations: int | None = None,
     ls_iterations: int | None = None,
     capsule_ends: str = "extend",
+    all_sensors: bool = False,
 ) -> str:
     """MJX-loadable XML: ``original_xml`` with every cylinder geom turned into a capsule (same radius and
     half-length) and explicit inertials where a body's inertia came from a converted geom (module docstring).
 
     The optional MJX contact bounds are inserted as the first ``<custom>`` numerics (mjx 3.17 reads them by index);
-    native MuJoCo ignores them. ``solver_iterations`` / ``ls_iterations`` override the XML's solver caps.
+    native MuJoCo ignores them (``max_contact_points=None``: unbounded). ``solver_iterations`` / ``ls_iterations``
+    override the XML's solver caps. Only the sensors in ``USED_SENSORS`` are kept unless ``all_sensors``.
     ``capsule_ends``: "extend" keeps the cylinder's half-length (the caps stick out by the radius at both ends);
     "match" shortens the half-length by the radius where the cylinder is longer than wide (half-length > radius),
     so the capsule's tips end where the cylinder's faces were; flat discs keep their half-length.
@@ -203,6 +219,11 @@ def adroit_xml(
     for default_geom in root.iter("geom"):
         if default_geom.get("type") == "cylinder":
             raise RuntimeError("a cylinder geom is left (from a default class?)")
+    if not all_sensors:
+        for block in root.iter("sensor"):
+            for sensor in list(block):
+                if sensor.get("name") not in USED_SENSORS[task]:
+                    block.remove(sensor)
     custom = root.find("custom")
     bounds = [("max_contact_points", max_contact_points), ("max_geom_pairs", max_geom_pairs)]
     if any(v is not None for _, v in bounds):
