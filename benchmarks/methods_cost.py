@@ -27,10 +27,10 @@ import _quiet  # noqa: F401  (first: the quiet start)
 import jax
 import jax.numpy as jnp
 import tyro
-from throughput import Case, aot, log, run_interleaved, synthetic_transitions, versions
 
 from proto_brax import envs, sweep
 from proto_brax.agents.registry import METHODS, agent
+from proto_brax.analysis.timing import Case, aot, log, run_interleaved, synthetic_transitions, versions
 from proto_brax.config import HParams
 from proto_brax.data.dataset import with_returns_to_go
 from proto_brax.files import strict_json, write_json_atomic

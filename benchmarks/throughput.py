@@ -35,11 +35,10 @@ import inspect
 import math
 import os
 import platform
-import resource
 import statistics
 import sys
 import time
-from typing import Any, Callable
+from typing import Any
 
 import _quiet  # noqa: F401  (first: the quiet start)
 import jax
@@ -51,6 +50,7 @@ from jax import lax
 from proto_brax import envs
 from proto_brax.agents.learner import init_learner
 from proto_brax.agents.registry import agent
+from proto_brax.analysis.timing import Case, aot, flops_of, log, run_interleaved, synthetic_transitions, versions
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
 from proto_brax.data.replay import replay_init, replay_insert, replay_sample
@@ -110,99 +110,6 @@ class Args:
     out: str = "benchmarks/results/throughput.json"  # JSON report (written atomically)
     reps: int | None = None  # timed repetitions per program (default: 3, quick: 2)
     host_devices: int = 2  # jax_num_cpu_devices (the grid of 3c is sharded over all of them)
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Helpers
-
-
-def log(msg: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
-
-
-def synthetic_transitions(key: jax.Array, n: int, obs: int, act: int) -> Transition:
-    k = jax.random.split(key, 5)
-    return Transition(
-        observations=jax.random.normal(k[0], (n, obs)),
-        actions=jax.random.uniform(k[1], (n, act), minval=-1.0, maxval=1.0),
-        rewards=jax.random.normal(k[2], (n,)),
-        next_observations=jax.random.normal(k[3], (n, obs)),
-        terminals=(jax.random.uniform(k[4], (n,)) < 0.01).astype(jnp.float32),
-        timeouts=jnp.zeros((n,)),
-    )
-
-
-def flops_of(compiled) -> float | None:
-    """FLOPs from ``Compiled.cost_analysis()``, which is a dict in recent JAX and a list of dicts in older ones."""
-    try:
-        ca = compiled.cost_analysis()
-    except Exception as e:  # noqa: BLE001 - some backends do not implement it
-        log(f"cost_analysis() failed: {e!r}")
-        return None
-    if ca is None:
-        return None
-    if isinstance(ca, dict):
-        ca = [ca]
-    vals = [float(d["flops"]) for d in ca if isinstance(d, dict) and "flops" in d]
-    return sum(vals) if vals else None
-
-
-@dataclasses.dataclass
-class Case:
-    """One timed program: ``step(state) -> (state, aux)``; ``units`` updates (or FLOPs) of work per call."""
-
-    name: str
-    step: Callable[[Any], tuple[Any, Any]]
-    state: Any
-    units: float
-    compile_s: float
-    times: list[float] = dataclasses.field(default_factory=list)
-    cpu_util: list[float] = dataclasses.field(default_factory=list)  # process CPU seconds / wall seconds per call
-
-    @property
-    def median(self) -> float:
-        return statistics.median(self.times)
-
-    @property
-    def rate(self) -> float:
-        return self.units / self.median
-
-    def record(self) -> dict:
-        return {"units_per_call": self.units, "compile_s": self.compile_s, "times_s": self.times,
-                "median_s": self.median, "units_per_s": self.rate, "process_cpu_per_wall": self.cpu_util}
-
-
-def _cpu_seconds() -> float:
-    """User + system CPU seconds of this process (all threads): cpu/wall ~ number of cores a program keeps busy."""
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
-
-
-def run_interleaved(cases: list[Case], reps: int, warmup: int) -> None:
-    """Warm every case up, then time them round-robin ``reps`` times (median taken later)."""
-    for _ in range(warmup):
-        for c in cases:
-            t0 = time.perf_counter()
-            c.state, aux = c.step(c.state)
-            jax.block_until_ready((c.state, aux))
-            log(f"  warm-up {c.name}: {time.perf_counter() - t0:.2f} s")
-    for r in range(reps):
-        for c in cases:
-            cpu0 = _cpu_seconds()
-            t0 = time.perf_counter()
-            c.state, aux = c.step(c.state)
-            jax.block_until_ready((c.state, aux))
-            c.times.append(time.perf_counter() - t0)
-            c.cpu_util.append((_cpu_seconds() - cpu0) / c.times[-1])
-            log(f"  rep {r + 1}/{reps} {c.name}: {c.times[-1]:.3f} s ({c.units / c.times[-1]:.4g} /s, "
-                f"cpu/wall {c.cpu_util[-1]:.2f})")
-
-
-def aot(fn, *args, **jit_kwargs):
-    """jit + lower + compile ahead of time; returns (compiled, seconds)."""
-    t0 = time.perf_counter()
-    compiled = jax.jit(fn, **jit_kwargs).lower(*args).compile()
-    return compiled, time.perf_counter() - t0
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -344,18 +251,6 @@ def verdict(name: str, value: float | None) -> str:
     op, goal = GOALS[name]
     ok = value <= goal if op == "<=" else value >= goal
     return "PASS" if ok else "FAIL"
-
-
-def versions() -> dict:
-    import importlib.metadata as md
-
-    out = {"python": platform.python_version()}
-    for pkg in ("jax", "jaxlib", "brax", "flax", "optax", "mujoco", "numpy"):
-        try:
-            out[pkg] = md.version(pkg)
-        except md.PackageNotFoundError:
-            out[pkg] = None
-    return out
 
 
 def main(args: Args) -> dict:
