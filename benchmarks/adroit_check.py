@@ -186,10 +186,10 @@ def check_task(task: str, args: Args) -> dict:
             t0 = time.perf_counter()
             jax.block_until_ready(compiled(*xs))
             times.append(time.perf_counter() - t0)
-        return out, compile_s, times
+        return out, compile_s, times, compiled
 
     layout32, actions32 = jnp.asarray(layout, jnp.float32), jnp.asarray(actions)
-    out, compile_s, times = timed(rollout, layout32, actions32)
+    out, compile_s, times, new_c = timed(rollout, layout32, actions32)
     mjx = tuple(np.asarray(x, np.float64) for x in out[:3])
     speed = {"batch1": {"compile_s": compile_s, "seconds_per_call": times,
                         "control_steps_per_s": args.steps / statistics.median(times)}}
@@ -197,7 +197,6 @@ def check_task(task: str, args: Args) -> dict:
     if args.baseline:  # the env before the contact bound and sensor pruning, timed interleaved with today's
         old = adroit.Adroit(task, **{**xml_kwargs, "max_contact_points": None, "all_sensors": True})
         old_c = jax.jit(make_rollout(old)).lower(layout32, actions32).compile()
-        new_c = jax.jit(rollout).lower(layout32, actions32).compile()
         old_out = jax.block_until_ready(old_c(layout32, actions32))
         pair = {"baseline": [], "env": []}
         for _ in range(args.reps):
@@ -213,7 +212,7 @@ def check_task(task: str, args: Args) -> dict:
         keys = jax.random.split(jax.random.PRNGKey(args.seed + 1), args.batch)
         layouts = jax.vmap(lambda k: adroit.sample_layout(task, k, jnp.asarray(own, jnp.float32)))(keys)
         acts = jnp.broadcast_to(actions32, (args.batch, *actions32.shape))
-        out_b, compile_b, times_b = timed(jax.vmap(rollout), layouts, acts)
+        out_b, compile_b, times_b, _ = timed(jax.vmap(rollout), layouts, acts)
         speed[f"batch{args.batch}"] = {"compile_s": compile_b, "seconds_per_call": times_b,
                                        "control_steps_per_s": args.batch * args.steps / statistics.median(times_b),
                                        "all_finite": bool(np.isfinite(np.asarray(out_b[0])).all())}

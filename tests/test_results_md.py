@@ -195,7 +195,7 @@ def test_claim_3_takes_its_ratio_from_the_dedicated_overhead_measurement_with_it
     assert "= 1.10" not in text and "| proto-sac | 110 |" in text  # the cost table still shows the full run
     sac_only = {"results": {"sac-scratch": overhead["results"]["sac-scratch"]}}  # lacks PROTO: the table's run
     (tmp_path / "overhead.json").write_text(json.dumps(sac_only))
-    assert mod.claim_cost(args)["status"] == "test"
+    assert mod.claim_cost(args, json.loads(args.cost.read_text()))["status"] == "test"
 
 
 def test_a_readme_without_the_markers_is_refused_before_anything_is_written(published, tmp_path):
