@@ -4,14 +4,14 @@ checkpoint, as fractions of a chunk, at the sweep's defaults.
     python benchmarks/chunk_overhead.py            # hopper, the default grid (2 τ × 2 η), 2000-step chunks; ~10 min
     python benchmarks/chunk_overhead.py --tiny     # the point task, tiny networks: checks the script runs
 
-The sweep's own plan (``proto_brax.sweep.plan_sweep``: the default method, dataset, bundle, grid, devices) runs
-through ``train.grid.run_grid`` with a callback that times, per chunk after the first (which compiles):
+The sweep's own plan (``proto_brax.experiment.plan.plan_sweep``: the default method, dataset, bundle, grid,
+devices) runs through ``train.grid.run_grid`` with a callback that times, per chunk after the first (which compiles):
 
 * ``chunk_s``: the compiled chunk (its ``eval_every`` training steps and the evaluation at its end) until its metrics
   are on the host;
 * ``eval_s``: the same evaluation alone (the grid's own evaluation program, ``GridProgram.initial_eval``, on the
   chunk's final state, timed apart; its share of ``chunk_s``);
-* ``rows_s``: metrics rows built and appended to ``metrics.jsonl``, as ``sweep.execute`` does;
+* ``rows_s``: metrics rows built and appended to ``metrics.jsonl``, as ``experiment.run.execute`` does;
 * ``save_s``: the resume checkpoint (``checkpoints.save_step`` of the whole grid state, replay buffers included).
 
 Host overhead per chunk = rows + checkpoint; with the evaluation, overhead = (eval + rows + save) / (chunk + rows +
@@ -49,7 +49,11 @@ def main(args: Args) -> dict:
     use_host_devices()  # as the sweep: one host device per core (before JAX starts its backend)
     import jax
 
-    from proto_brax import checkpoints, sweep
+    from proto_brax import checkpoints
+    from proto_brax.cli.sweep import parse_args
+    from proto_brax.experiment.outdir import append_rows, prepare_out
+    from proto_brax.experiment.plan import plan_sweep
+    from proto_brax.experiment.run import metric_rows, train_dataset
     from proto_brax.files import write_json_atomic
     from proto_brax.train.grid import compile_grid, grid_mesh, run_grid
 
@@ -58,10 +62,10 @@ def main(args: Args) -> dict:
         if args.tiny:
             flags += ["--env", "point", "--dataset", "none", "--checkpoint", "none", "--hidden", "32", "32",
                       "--batch-size", "32", "--eval-every", "200", "--learning-starts", "100", "--eval-episodes", "2"]
-        sa = sweep.parse_args(flags)
+        sa = parse_args(flags)
         sa = dataclasses.replace(sa, steps=sa.eval_every * args.chunks)
-        plan = sweep.plan_sweep(sa)
-        sweep._prepare_out(sa, plan.config)
+        plan = plan_sweep(sa)
+        prepare_out(sa, plan.config)
         mesh = grid_mesh()
         program = compile_grid(plan.ft, mesh, plan.per_run)
         timing = {k: [] for k in ("chunk_s", "eval_s", "rows_s", "save_s")}
@@ -70,8 +74,8 @@ def main(args: Args) -> dict:
         def on_chunk(c, m, state):
             chunk_s = time.perf_counter() - clock["t"]
             t0 = time.perf_counter()
-            rows = sweep._rows(c, m, plan.grid, plan.cfg.env, 0.0)
-            sweep._append_rows(Path(sa.out) / "metrics.jsonl", rows)
+            rows = metric_rows(c, m, plan.grid, plan.cfg.env, 0.0)
+            append_rows(Path(sa.out) / "metrics.jsonl", rows)
             t1 = time.perf_counter()
             checkpoints.save_step(Path(sa.out) / "state", c + 1, state, {"chunks_done": c + 1})
             t2 = time.perf_counter()
@@ -85,7 +89,7 @@ def main(args: Args) -> dict:
                     timing[k].append(v)
             clock["t"] = time.perf_counter()
 
-        run_grid(plan.ft, plan.grid, plan.pretrained, sweep.train_dataset(plan), mesh=mesh, program=program,
+        run_grid(plan.ft, plan.grid, plan.pretrained, train_dataset(plan), mesh=mesh, program=program,
                  callback=on_chunk, per_run_pretrained=plan.per_run)
         latest = checkpoints.latest_step(Path(sa.out) / "state")
         state_mb = sum(p.stat().st_size for p in latest.rglob("*") if p.is_file()) / 2 ** 20

@@ -25,7 +25,7 @@ from pathlib import Path
 import _quiet  # noqa: F401  (first: the quiet start)
 import tyro
 
-from proto_brax import datasets
+from proto_brax.data import cache as datasets
 from proto_brax.data.generate import dataset_names
 from proto_brax.envs import host_cpu
 from proto_brax.files import write_json_atomic

@@ -36,8 +36,6 @@ import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SAC_UPDATE_S = 1.0 / 195.0  # FACTS.md: one SAC update (2x256, batch 256) on this CPU, lax.scan, single run
-
 
 @dataclasses.dataclass
 class Args:
@@ -59,179 +57,38 @@ class Args:
     out: Path = ROOT / "benchmarks" / "results" / "gym_v5_check.json"
 
 
-def lockstep_stats(task: str, args: Args, env, step) -> dict:
-    import numpy as np
-
-    from proto_brax.envs import gym_v5
-
-    native = gym_v5.native_env(task)
-    runs = []
-    for start in range(args.starts):
-        native.reset(seed=start)
-        actions = np.random.default_rng(1000 + start).uniform(-1, 1, (args.lockstep_steps, env.action_size))
-        runs.append(gym_v5.lockstep(env, step, native, actions))
-
-    def first_above(err, tol):
-        above = np.nonzero(err > tol)[0]
-        return int(above[0]) + 1 if above.size else None  # steps are 1-based
-
-    out = {"steps": args.lockstep_steps, "starts": args.starts}
-    for key in ("qpos_err", "obs_err", "reward_err"):
-        errs = np.stack([r[key] for r in runs])
-        out[key] = {f"step_{s}": float(errs[:, s - 1].max()) for s in (1, 10, 50) if s <= args.lockstep_steps}
-    for tol in (1e-3, 1e-1):
-        firsts = [first_above(r["qpos_err"], tol) for r in runs]
-        out[f"first_step_qpos_err_above_{tol:g}"] = firsts
-    out["first_done_step"] = [[int(np.argmax(r[k])) + 1 if r[k].any() else None for k in ("done", "native_done")]
-                              for r in runs]
-    return out
-
-
-def our_returns(env, episodes: int, key, episode_length: int = 1000):
-    """Random-policy returns and lengths of ``episodes`` envs run once to termination or the time limit."""
-    import jax
-    import jax.numpy as jnp
-
-    def one(key):
-        key_reset, key_act = jax.random.split(key)
-        state = env.reset(key_reset)
-
-        def body(carry, key_t):
-            state, ret, length, alive = carry
-            action = jax.random.uniform(key_t, (env.action_size,), minval=-1.0, maxval=1.0)
-            nxt = env.step(state, action)
-            ret = ret + jnp.where(alive, nxt.reward, 0.0)
-            length = length + alive
-            alive = alive & (nxt.done == 0)
-            return (nxt, ret, length, alive), None
-
-        keys = jax.random.split(key_act, episode_length)
-        (_, ret, length, _), _ = jax.lax.scan(body, (state, jnp.zeros(()), jnp.zeros((), jnp.int32), True), keys)
-        return ret, length
-
-    fn = jax.jit(jax.vmap(one))
-    t0 = time.perf_counter()
-    compiled = fn.lower(jax.random.split(key, episodes)).compile()
-    compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    ret, length = jax.block_until_ready(compiled(jax.random.split(key, episodes)))
-    run_s = time.perf_counter() - t0
-    return ret, length, compile_s, run_s
-
-
-def native_returns(task: str, episodes: int, seed: int):
-    import gymnasium as gym
-    import numpy as np
-
-    from proto_brax.envs import gym_v5
-
-    env = gym.make(gym_v5.get_task(task).gym_id)  # with gymnasium's TimeLimit(1000)
-    rng = np.random.default_rng(seed)
-    returns, lengths, steps = [], [], 0
-    t0 = time.perf_counter()
-    for episode in range(episodes):
-        env.reset(seed=seed + episode)
-        total, n, done = 0.0, 0, False
-        while not done:
-            _, reward, terminated, truncated, _ = env.step(rng.uniform(-1.0, 1.0, env.action_space.shape))
-            total, n, done = total + reward, n + 1, terminated or truncated
-        returns.append(total)
-        lengths.append(n)
-        steps += n
-    return np.asarray(returns), np.asarray(lengths), steps / (time.perf_counter() - t0)
-
-
-def summary(x) -> dict:
-    import numpy as np
-
-    x = np.asarray(x, np.float64)
-    se = float(x.std(ddof=1) / np.sqrt(len(x)))
-    mean = float(x.mean())
-    return {"n": len(x), "mean": mean, "std": float(x.std(ddof=1)), "se": se, "ci95": [mean - 1.96 * se,
-                                                                                          mean + 1.96 * se]}
-
-
-def scan_speed(env, batch: int, steps: int, key) -> dict:
-    """Env steps/s (all envs together) of a jitted lax.scan of random-action steps, after compile."""
-    import jax
-
-    def rollout(key):
-        key_reset, key_act = jax.random.split(key)
-        state = jax.vmap(env.reset)(jax.random.split(key_reset, batch))
-
-        def body(state, key_t):
-            action = jax.random.uniform(key_t, (batch, env.action_size), minval=-1.0, maxval=1.0)
-            return jax.vmap(env.step)(state, action), None
-
-        state, _ = jax.lax.scan(body, state, jax.random.split(key_act, steps))
-        return state.obs
-
-    fn = jax.jit(rollout)
-    t0 = time.perf_counter()
-    compiled = fn.lower(key).compile()
-    compile_s = time.perf_counter() - t0
-    jax.block_until_ready(compiled(key))  # warm
-    t0 = time.perf_counter()
-    jax.block_until_ready(compiled(jax.random.fold_in(key, 1)))
-    run_s = time.perf_counter() - t0
-    return {"batch": batch, "steps": steps, "compile_s": compile_s, "steps_per_s": batch * steps / run_s}
-
-
 def main(args: Args) -> None:
     from proto_brax import envs
 
     os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()  # before jax starts (FACTS.md: batched MJX hangs without it)
     import jax
 
+    from proto_brax.analysis import crosscheck
+    from proto_brax.files import write_json_atomic
 
     result = {"date": datetime.date.today().isoformat(), "machine": envs.machine_info(),
               "args": {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(args).items()},
-              "sac_update_s_assumed": SAC_UPDATE_S, "tasks": {}}
+              "sac_update_s_assumed": crosscheck.SAC_UPDATE_S, "tasks": {}}
     key = jax.random.PRNGKey(args.seed)
     for task in args.tasks:
-        name = f"{task}-v5"
-        env = envs.make_env(name)
-        spec = envs.get_spec(name)
+        env = envs.make_env(f"{task}-v5")
         row: dict = {}
         t0 = time.perf_counter()
         step = jax.jit(env.step)
-        row["lockstep"] = lockstep_stats(task, args, env, step)
+        row["lockstep"] = crosscheck.lockstep_stats(task, env, step, args.starts, args.lockstep_steps)
         row["lockstep"]["wall_s"] = time.perf_counter() - t0
         print(task, "lockstep", json.dumps(row["lockstep"]), flush=True)
 
-        ret, length, compile_s, run_s = our_returns(env, args.episodes, jax.random.fold_in(key, 1))
-        nat_ret, nat_len, native_sps = native_returns(task, args.episodes, args.seed)
-        ours, theirs = summary(ret), summary(nat_ret)
-        diff = ours["mean"] - theirs["mean"]
-        se = (ours["se"] ** 2 + theirs["se"] ** 2) ** 0.5
-        row["random_policy"] = {
-            "ours": {**ours, "mean_length": float(length.mean()), "compile_s": compile_s,
-                     "steps_per_s": float(length.sum()) / run_s},
-            "native": {**theirs, "mean_length": float(nat_len.mean()), "steps_per_s": native_sps},
-            "diff": diff, "diff_se": se, "z": diff / se if se > 0 else 0.0, "within_ci95": abs(diff) <= 1.96 * se,
-            "d4rl_random_ref_v2": spec.ref_random}
+        row["random_policy"], ours_batch, native_sps = crosscheck.random_policy(
+            task, env, args.episodes, args.seed, jax.random.fold_in(key, 1))
         print(task, "random policy", json.dumps(row["random_policy"]), flush=True)
 
-        # Ours at batch ``episodes``: the return rollout above (every env runs all 1000 scanned steps, ended or not).
-        speed = {"ours_b1": scan_speed(env, 1, args.speed_steps, key),
-                 "ours_batch": {"batch": args.episodes, "steps": 1000, "compile_s": compile_s,
-                                "steps_per_s": args.episodes * 1000 / run_s}}
-        if args.brax:
-            brax_env = envs.make_env(task)
-            backend = envs.get_spec(task).default_backend
-            speed["brax_b1"] = {"backend": backend, **scan_speed(brax_env, 1, args.speed_steps, key)}
-            if args.batch > 1:
-                speed["brax_batch"] = {"backend": backend, **scan_speed(brax_env, args.batch, args.speed_steps, key)}
-        speed["native_one_env"] = native_sps
-        step_s = 1.0 / speed["ours_b1"]["steps_per_s"]
-        speed["ours_b1_step_ms"] = 1e3 * step_s
-        speed["ours_b1_share_of_online_step"] = step_s / (step_s + SAC_UPDATE_S)
-        row["speed"] = speed
-        print(task, "speed", json.dumps(speed), flush=True)
+        row["speed"] = crosscheck.gym_v5_speed(task, env, args.speed_steps, key, ours_batch, native_sps, args.brax,
+                                               args.batch)
+        print(task, "speed", json.dumps(row["speed"]), flush=True)
         result["tasks"][task] = row
     result["machine"]["loadavg_end"] = os.getloadavg()
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1) + "\n")
+    write_json_atomic(args.out, result)
     print("wrote", args.out)
 
 

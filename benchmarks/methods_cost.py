@@ -28,11 +28,13 @@ import jax
 import jax.numpy as jnp
 import tyro
 
-from proto_brax import envs, sweep
-from proto_brax.agents.registry import METHODS, agent
+from proto_brax import envs
+from proto_brax.agents.registry import METHODS, agent, get_method
 from proto_brax.analysis.timing import Case, aot, log, run_interleaved, synthetic_transitions, versions
 from proto_brax.config import HParams
 from proto_brax.data.dataset import with_returns_to_go
+from proto_brax.experiment.args import sweep_args
+from proto_brax.experiment.plan import finetune_config
 from proto_brax.files import strict_json, write_json_atomic
 from proto_brax.train.online import make_finetune
 
@@ -52,9 +54,9 @@ class Args:
 def method_config(name: str, args: Args):
     """The sweep's own FinetuneConfig for the method (its sampling follows from its dataset use, as in a sweep)."""
     size = dict(hidden=(32, 32), batch_size=32) if args.quick else {}
-    sa = sweep.sweep_args(name, env=args.env, steps=args.chunk_steps * 4, eval_every=args.chunk_steps,
+    sa = sweep_args(name, env=args.env, steps=args.chunk_steps * 4, eval_every=args.chunk_steps,
                           learning_starts=1, **size)
-    cfg = sweep._finetune_config(sa)  # reads only the dataset's name, never the data
+    cfg = finetune_config(sa)  # reads only the dataset's name, never the data
     # eval_episodes 1 and a 10-step time limit make the end-of-chunk evaluation negligible (env_step computes a reset
     # state every step anyway, so the time limit does not change the cost of a training step).
     return dataclasses.replace(cfg, eval_episodes=1, episode_length=10), sa
@@ -81,7 +83,7 @@ def main(args: Args) -> dict:
     groups: dict = {}
     for name in args.methods:
         cfg, sa = method_config(name, args)
-        hp_over = {**sweep.get_method(name).hp, "alpha0": sa.alpha0[0], "tau": sa.tau[0]}
+        hp_over = {**get_method(name).hp, "alpha0": sa.alpha0[0], "tau": sa.tau[0]}
         groups.setdefault(cfg, {"methods": [], "hp": hp_over})["methods"].append(name)
     cases = []
     for cfg, g in groups.items():

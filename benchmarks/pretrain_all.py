@@ -52,7 +52,7 @@ class Args:
 
 def cached_hash(dataset: str) -> str | None:
     """Content hash recorded in the cached dataset file (reads only its metadata entry), None if not cached."""
-    from proto_brax.datasets import cached_metadata, dataset_path
+    from proto_brax.data.cache import cached_metadata, dataset_path
 
     path = dataset_path(dataset)
     return cached_metadata(path)["content_hash"] if path.exists() else None
@@ -94,7 +94,7 @@ def main(args: Args) -> None:
     args.logs.mkdir(parents=True, exist_ok=True)
     queue = pending(args)
     print(f"{len(queue)} bundle(s) to make: {[(d, job[1], stale) for d, job, stale in queue]}", flush=True)
-    from proto_brax.datasets import dataset_path
+    from proto_brax.data.cache import dataset_path
 
     for dataset in dict.fromkeys(d for d, _, _ in queue):  # build missing datasets first (deterministic, cached)
         if not dataset_path(dataset).exists():

@@ -13,7 +13,7 @@ from test_engine import SCRATCH, TINY, finetune_fn, point_dataset
 
 from proto_brax import checkpoints, pretrain, sweep
 from proto_brax.agents.learner import Pretrained
-from proto_brax.checkpoints import cli as checkpoints_cli
+from proto_brax.cli import checkpoints as checkpoints_cli
 from proto_brax.data.dataset import save_npz
 from proto_brax.networks import NetworkConfig
 

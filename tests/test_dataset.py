@@ -435,7 +435,7 @@ def test_minari_missing_dataset_raises(tmp_path, monkeypatch):
 def test_sweep_dataset_argument_reads_minari_ids_and_directories(tmp_path, monkeypatch):
     """`--dataset D4RL/pen/human-v2` (the paper-adroit preset) goes through datasets.load_dataset: a Minari id or a
     Minari directory loads; an id that is not cached names where to put it (nothing is downloaded)."""
-    from proto_brax import datasets
+    from proto_brax.data import cache as datasets
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
     _record("toy/walk-v0")

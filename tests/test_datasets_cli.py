@@ -8,9 +8,12 @@ import jax
 import numpy as np
 import pytest
 
-from proto_brax import datasets, envs
+from proto_brax import envs
+from proto_brax.cli import datasets as datasets_cli
+from proto_brax.data import cache as datasets
 from proto_brax.data import generate as g
 from proto_brax.data.dataset import CorruptDatasetError, content_hash, episode_returns, load_npz
+from proto_brax.experiment.plan import load_dataset
 
 SMALL = dict(size=2000, num_envs=20, progress=False)
 
@@ -71,7 +74,7 @@ def test_measure_records_behavior_returns_and_picks_medium_by_them(tmp_path, cap
 
     root = tmp_path / "behavior"
     shutil.copytree(Path(__file__).resolve().parents[1] / "checkpoints" / "behavior" / "point", root / "point")
-    out = datasets.cmd_measure(datasets.Measure("point", episodes=8, behavior_root=root))
+    out = datasets_cli.cmd_measure(datasets_cli.Measure("point", episodes=8, behavior_root=root))
     snaps = g.list_snapshots("point", root)
     assert [r["step"] for r in out] == [s.step for s in snaps]
     assert all(s.metadata["behavior_return"]["episodes"] == 8 for s in snaps)
@@ -94,7 +97,7 @@ def test_a_cached_dataset_from_other_snapshots_is_stale(tmp_path, medium, capsys
                                                   r"--force"):
         datasets.load_dataset("point-medium", 2000, 0, tmp_path)
     save_npz(datasets.dataset_path("point-medium", None, 0, tmp_path), data, old)  # the default size, for `list`
-    datasets.cmd_list(datasets.List(cache_dir=tmp_path))
+    datasets_cli.cmd_list(datasets_cli.List(cache_dir=tmp_path))
     assert "stale (it was generated from the medium snapshot" in capsys.readouterr().out
 
 
@@ -175,16 +178,16 @@ def test_host_cpu_names_the_model_and_the_widest_vector_isa(monkeypatch):
 def test_cli_make_info_list_and_corruption(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
     args = ["--size", "2000", "--num-envs", "20", "--cache-dir", str(tmp_path)]
-    datasets.main(["make", "point-random", *args])
+    datasets_cli.main(["make", "point-random", *args])
     path = datasets.dataset_path("point-random", 2000, 0, tmp_path)
     assert path.exists() and not list(tmp_path.glob(".*tmp"))
     _, meta = load_npz(path)
     assert meta["xla_flags"] == "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"  # as generated
     assert meta["cpu"] == envs.host_cpu()  # and on which CPU
-    datasets.main(["info", "point-random", "--size", "2000", "--cache-dir", str(tmp_path)])
+    datasets_cli.main(["info", "point-random", "--size", "2000", "--cache-dir", str(tmp_path)])
     out = capsys.readouterr().out
     assert "episodes" in out and "return mean" in out
-    datasets.main(["list", "--cache-dir", str(tmp_path)])
+    datasets_cli.main(["list", "--cache-dir", str(tmp_path)])
     assert "hopper-medium-replay" in capsys.readouterr().out
     raw = bytearray(path.read_bytes())
     raw[len(raw) // 2] ^= 0xFF
@@ -203,14 +206,13 @@ def test_unknown_and_missing_datasets_name_the_fix(tmp_path):
 
 
 def test_sweep_rebuilds_a_missing_or_stale_dataset(tmp_path, monkeypatch, capsys, medium):
-    from proto_brax import sweep
     from proto_brax.data.dataset import save_npz
 
     monkeypatch.setenv(datasets.ENV_VAR, str(tmp_path))
     data, meta = medium
     old = {**meta, "medium_snapshot": {**meta["medium_snapshot"], "step": meta["medium_snapshot"]["step"] + 1}}
     save_npz(datasets.dataset_path("point-medium", 2000), data, old)
-    rebuilt, new_meta = sweep._load_dataset("point-medium", 2000)
+    rebuilt, new_meta = load_dataset("point-medium", 2000)
     assert "is stale (it was generated from the medium snapshot" in capsys.readouterr().out
     assert datasets.stale_reason(new_meta) is None and datasets.stale_reason(datasets.cached_metadata(
         datasets.dataset_path("point-medium", 2000))) is None
@@ -230,7 +232,7 @@ def test_staleness_follows_the_snapshots_a_kind_is_made_from(medium):
 
 def test_checkpoint_index_names_expert_and_medium_of_each_env():
     from proto_brax import envs
-    from proto_brax.checkpoints.cli import index_markdown
+    from proto_brax.cli.checkpoints import index_markdown
 
     text = index_markdown(Path(__file__).resolve().parents[1] / "checkpoints")
     for env in ("hopper", "walker2d", "halfcheetah", "ant"):

@@ -151,7 +151,7 @@ def test_success_steps_count_the_alive_steps_flagged_success():
 
 
 def test_goal_task_episode_stats():
-    from proto_brax.sweep import episode_stats
+    from proto_brax.experiment.summary import episode_stats
 
     stats = episode_stats("antmaze-umaze", [1.0, 0.0, 1.0], [100, 700, 300])
     assert stats == pytest.approx({"eval_length": 1100 / 3, "success_rate": 2 / 3, "steps_to_goal": 200.0})

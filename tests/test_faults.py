@@ -19,8 +19,13 @@ import jax
 import numpy as np
 import pytest
 
-from proto_brax import checkpoints, datasets, pretrain, sweep
+from proto_brax import checkpoints, pretrain, sweep
+from proto_brax.cli import datasets as datasets_cli
+from proto_brax.cli.sweep import start_distributed
+from proto_brax.data import cache as datasets
 from proto_brax.data import dataset as ds
+from proto_brax.experiment.outdir import append_rows, truncate_metrics
+from proto_brax.experiment.plan import load_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = dict(env="point", dataset="none", hidden=(32, 32), batch_size=32, learning_starts=64, eval_episodes=2,
@@ -174,11 +179,11 @@ def test_truncated_cached_dataset_names_the_make_command(tmp_path, monkeypatch):
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
     fix = r"python -m proto_brax.datasets make point-random --size 2000 --force"
     with pytest.raises(ds.CorruptDatasetError, match=fix):
-        sweep._load_dataset("point-random", 2000)
+        load_dataset("point-random", 2000)
     with pytest.raises(ds.CorruptDatasetError, match=fix):
         datasets.load_dataset("point-random", 2000)
     with pytest.raises(ds.CorruptDatasetError, match=fix):
-        datasets.cmd_info(datasets.Info(name="point-random", size=2000))
+        datasets_cli.cmd_info(datasets_cli.Info(name="point-random", size=2000))
 
 
 # 5. non-finite values caught only after the output directory was written ----------------------------------------
@@ -219,7 +224,7 @@ def test_resume_drops_a_torn_last_metrics_line(tmp_path):
     path = tmp_path / "metrics.jsonl"
     rows = [{"chunk": c, "run": r, "eval_return": 1.0} for c in (-1, 0) for r in (0, 1)]
     path.write_text("".join(json.dumps(r) + "\n" for r in rows) + '{"chunk": 1, "run": 0, "eval_ret')
-    sweep._truncate_metrics(path, 1)
+    truncate_metrics(path, 1)
     assert [json.loads(x) for x in path.read_text().splitlines()] == rows
 
 
@@ -228,7 +233,7 @@ def test_one_chunk_of_rows_is_one_write(tmp_path, monkeypatch):
     real = os.write
     monkeypatch.setattr(os, "write", lambda fd, b: calls.append(len(b)) or real(fd, b))
     rows = [{"chunk": 0, "run": i, "eval_return": float(i), "pad": "x" * 700} for i in range(64)]  # > 40 kB
-    sweep._append_rows(tmp_path / "m.jsonl", rows)
+    append_rows(tmp_path / "m.jsonl", rows)
     assert len(calls) == 1 and calls[0] > 40_000
     assert len((tmp_path / "m.jsonl").read_text().splitlines()) == 64
 
@@ -242,7 +247,7 @@ def test_help_names_the_coordinator_flags_not_unread_variables():
     assert "--coordinator" in p.stdout and "--num-processes" in p.stdout and "--process-id" in p.stdout
     assert "JAX_NUM_PROCESSES" not in p.stdout and "JAX_PROCESS_ID" not in p.stdout
     with pytest.raises(ValueError, match="--coordinator needs --num-processes"):
-        sweep.start_distributed(sweep.SweepArgs(coordinator="127.0.0.1:1234"))
+        start_distributed(sweep.SweepArgs(coordinator="127.0.0.1:1234"))
 
 
 def _free_port() -> int:
@@ -290,7 +295,7 @@ def test_negative_devices_is_an_error(tmp_path):
 
 
 def test_outputs_are_strict_json_and_readers_take_null(tiny_sweep):
-    from proto_brax.report import load_sweep
+    from proto_brax.analysis.report import load_sweep
 
     rows = [_strict(x) for x in (tiny_sweep / "metrics.jsonl").read_text().splitlines()]
     assert all(r["grid_updates_per_s"] is None for r in rows if r["chunk"] == -1)  # π₀ rows: was bare NaN
@@ -349,5 +354,5 @@ def test_datasets_make_force_replaces_only_a_dataset_file(tmp_path):
     path.mkdir(parents=True)
     (path / "keep.txt").write_text("mine")
     with pytest.raises(FileExistsError, match="not a dataset file"):
-        datasets.cmd_make(datasets.Make(name="point-random", size=2000, cache_dir=tmp_path, force=True))
+        datasets_cli.cmd_make(datasets_cli.Make(name="point-random", size=2000, cache_dir=tmp_path, force=True))
     assert (path / "keep.txt").read_text() == "mine"

@@ -20,6 +20,8 @@ from proto_brax.agents.learner import Pretrained, init_learner
 from proto_brax.agents.registry import agent
 from proto_brax.config import FinetuneConfig, HParams
 from proto_brax.data.dataset import Transition
+from proto_brax.experiment.args import grid_axes
+from proto_brax.experiment.plan import REPO_ROOT, finetune_config, load_checkpoint, resolve_checkpoint
 from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train.online import make_finetune
 
@@ -204,24 +206,24 @@ def test_method_errors_name_the_fix(tmp_path):
     with pytest.raises(SystemExit, match="--algo needs one of"):
         sweep.parse_args(["--algo", "cql-magic"])
     with pytest.raises(ValueError, match="does not use tau"):
-        sweep.grid_axes(sweep.sweep_args("iql", tau=(0.0, 0.1)))
+        grid_axes(sweep.sweep_args("iql", tau=(0.0, 0.1)))
     with pytest.raises(ValueError, match="NAME=V1,V2"):
-        sweep.grid_axes(sweep.sweep_args("iql", grid=("expectile",)))
-    assert sweep.grid_axes(sweep.sweep_args("iql", grid=("expectile=0.7,0.9",)))["expectile"] == [0.7, 0.9]
+        grid_axes(sweep.sweep_args("iql", grid=("expectile",)))
+    assert grid_axes(sweep.sweep_args("iql", grid=("expectile=0.7,0.9",)))["expectile"] == [0.7, 0.9]
     with pytest.raises(ValueError, match="starts from a random init"):
-        sweep.resolve_checkpoint(sweep.sweep_args("sac-scratch", checkpoint=str(tmp_path)))
+        resolve_checkpoint(sweep.sweep_args("sac-scratch", checkpoint=str(tmp_path)))
     # a dataset without a committed IQL bundle (walker2d-medium has one since the results runs)
-    assert not (sweep.REPO_ROOT / "checkpoints" / "pretrained" / "point-medium" / "iql").exists()
+    assert not (REPO_ROOT / "checkpoints" / "pretrained" / "point-medium" / "iql").exists()
     with pytest.raises(FileNotFoundError, match="python -m proto_brax.pretrain --dataset point-medium --algo iql"):
-        sweep.resolve_checkpoint(sweep.sweep_args("iql", env="point"))
+        resolve_checkpoint(sweep.sweep_args("iql", env="point"))
 
 
 def test_bundle_kind_must_match_the_method():
-    committed = sweep.REPO_ROOT / "checkpoints" / "pretrained" / "hopper-medium" / "eql"
+    committed = REPO_ROOT / "checkpoints" / "pretrained" / "hopper-medium" / "eql"
     args = sweep.sweep_args("iql", checkpoint=str(committed))
-    cfg = sweep._finetune_config(dataclasses.replace(args, dataset="none", sampling="online"))
+    cfg = finetune_config(dataclasses.replace(args, dataset="none", sampling="online"))
     with pytest.raises(ValueError, match="pretrained with iql, but .* holds 'eql'"):
-        sweep._load_checkpoint(committed, cfg, None, "iql")
+        load_checkpoint(committed, cfg, None, "iql")
 
 
 # ------------------------------------------------------------------------------------------------------ CQL/Cal-QL
@@ -401,30 +403,29 @@ def test_off2on_finetunes_point_from_a_cql_ensemble():
     assert score0 < 50.0 and score[-1] >= 80.0, (score0, score)
 
 
-def test_locomotion_runner_commands_parse():
-    """benchmarks/locomotion.py builds one sweep command per (dataset, method): each parses, with the stated budget
-    and α annealed over the same fraction of the run (horizon = budget)."""
-    import sys
-    from pathlib import Path
+def test_locomotion_runner_commands_parse(tmp_path):
+    """benchmarks/locomotion.py builds one sweep command per (dataset, method) (``locomotion_plan.sweep_command``):
+    each parses, with the stated budget and α annealed over the same fraction of the run (horizon = budget)."""
+    from proto_brax.analysis import locomotion_plan as plan
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import locomotion
+    def command(dataset, method, resume, single_core=False):  # the runner's defaults, a 20k budget
+        return plan.sweep_command(dataset, method, tmp_path / dataset / method, seeds=(0, 1, 2, 3, 4), steps=20_000,
+                                  eval_every=2_500, single_core=single_core, resume=resume)
 
-    args = locomotion.Args(steps=20_000)
-    for method in locomotion.PAPER_METHODS:
-        cmd = locomotion.sweep_command("walker2d-medium-replay", method, args, resume=True)
+    for method in plan.PAPER_METHODS:
+        cmd = command("walker2d-medium-replay", method, resume=True)
         parsed = sweep.parse_args(cmd[3:])
         assert parsed.algo == method and parsed.env == "walker2d" and parsed.steps == 20_000
         assert parsed.anneal_horizon == 20_000 and parsed.seeds == (0, 1, 2, 3, 4) and parsed.resume
         want = "none" if method == "sac-scratch" else "walker2d-medium-replay"
         assert parsed.dataset == want
     # the ablations: PROTO-SAC over the two non-default values of one axis (0.5 and 2 × τ₀; η 0.8 and 1.0)
-    tau = sweep.parse_args(locomotion.sweep_command("hopper-medium", "ablate-tau", args, resume=False)[3:])
-    eta = sweep.parse_args(locomotion.sweep_command("hopper-medium", "ablate-eta", args, resume=False)[3:])
+    tau = sweep.parse_args(command("hopper-medium", "ablate-tau", resume=False)[3:])
+    eta = sweep.parse_args(command("hopper-medium", "ablate-eta", resume=False)[3:])
     assert tau.algo == eta.algo == "proto-sac" and tau.dataset == "hopper-medium" and not tau.resume
     assert tau.tau == (0.0025, 0.01) and tau.eta == (0.9,) and eta.eta == (0.8, 1.0) and eta.tau == (0.005,)
     # single_core: one device (5 seeds, no padding run) and one XLA thread for the child
-    one = locomotion.Args(single_core=True)
-    assert sweep.parse_args(locomotion.sweep_command("hopper-medium", "direct", one, resume=False)[3:]).devices == 1
-    assert "--xla_cpu_multi_thread_eigen=false" in locomotion.sweep_env(one)["XLA_FLAGS"]
-    assert sweep.parse_args(locomotion.sweep_command("hopper-medium", "direct", args, resume=False)[3:]).devices is None
+    one = command("hopper-medium", "direct", resume=False, single_core=True)
+    assert sweep.parse_args(one[3:]).devices == 1
+    assert "--xla_cpu_multi_thread_eigen=false" in plan.sweep_env(single_core=True)["XLA_FLAGS"]
+    assert sweep.parse_args(command("hopper-medium", "direct", resume=False)[3:]).devices is None

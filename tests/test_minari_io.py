@@ -11,7 +11,9 @@ import pytest
 
 minari = pytest.importorskip("minari")  # the `test` extra
 
-from proto_brax import datasets, envs  # noqa: E402
+from proto_brax import envs  # noqa: E402
+from proto_brax.cli import datasets as datasets_cli  # noqa: E402
+from proto_brax.data import cache as datasets  # noqa: E402
 from proto_brax.data import minari_io  # noqa: E402
 from proto_brax.data.dataset import (  # noqa: E402
     CorruptDatasetError,
@@ -71,9 +73,9 @@ def test_round_trip_through_minaris_reader_and_ours(point_medium, tmp_path, monk
     assert bmeta["env"] == "point" and bmeta["proto_brax"]["generation"]["kind"] == "medium"
     assert (bmeta["ref_min_score"], bmeta["ref_max_score"]) == (spec.ref_random, spec.ref_expert)
     assert content_hash(datasets.load_dataset(str(path))[0]) == expected
-    from proto_brax.sweep import _load_dataset  # what `python -m proto_brax.sweep --dataset ID` reads
+    from proto_brax.experiment.plan import load_dataset  # what `python -m proto_brax.sweep --dataset ID` reads
 
-    assert content_hash(_load_dataset("proto_brax/point/medium-v0")[0]) == expected
+    assert content_hash(load_dataset("proto_brax/point/medium-v0")[0]) == expected
 
 
 def _ep(obs, steps, *, start=0.0):
@@ -177,7 +179,7 @@ def test_cli_export_a_cached_dataset(point_medium, tmp_path, capsys, monkeypatch
     cache, out = tmp_path / "cache", tmp_path / "minari"
     save_npz(datasets.dataset_path("point-medium", SIZE, 0, cache), data, meta)
     args = ["export", "point-medium", "--minari", "--size", str(SIZE), "--cache-dir", str(cache), "--out", str(out)]
-    datasets.main(args)
+    datasets_cli.main(args)
     path = out / "proto_brax" / "point" / f"medium-n{SIZE}-seed0-v0"
     assert f"read back bit-for-bit (content hash {content_hash(data)})" in capsys.readouterr().out
     assert content_hash(datasets.load_dataset(str(path))[0]) == content_hash(data)
@@ -185,15 +187,15 @@ def test_cli_export_a_cached_dataset(point_medium, tmp_path, capsys, monkeypatch
         "--force")
 
     with pytest.raises(SystemExit) as e:  # again: refused, one line naming --force
-        datasets.main(args)
+        datasets_cli.main(args)
     assert e.value.code == 2
     err = capsys.readouterr().err.splitlines()
     assert err[0].startswith("error: Minari dataset") and "--force" in err[0]
-    datasets.main([*args, "--force"])
+    datasets_cli.main([*args, "--force"])
     assert "read back bit-for-bit" in capsys.readouterr().out
 
     for extra, fix in ((["--id", "not an id"], "pass another --id"), ([], None)):
         argv = [a for a in args if a != "--minari"] if fix is None else [*args, *extra]
         with pytest.raises(SystemExit):
-            datasets.main(argv)
+            datasets_cli.main(argv)
         assert (fix or "pass --minari") in capsys.readouterr().err.splitlines()[0]

@@ -11,7 +11,8 @@ import pytest
 from matplotlib import image as mpimg
 from scipy import stats
 
-from proto_brax import report
+from proto_brax.analysis import report
+from proto_brax.cli import report as report_cli
 
 TAUS = (0.0, 0.005)
 ETAS = (0.5, 1.0)
@@ -196,7 +197,7 @@ def test_missing_metrics_raises(tmp_path):
     with pytest.raises(report.ReportError, match=r"not a sweep directory.*metrics\.jsonl.*python -m proto_brax\.sweep"):
         report.make_report([d])
     with pytest.raises(SystemExit, match="not a sweep directory"):
-        report.main([str(d)])
+        report_cli.main([str(d)])
     with pytest.raises(report.ReportError, match="not a sweep directory"):
         report.load_sweep(tmp_path / "missing")
 
@@ -210,7 +211,7 @@ def test_empty_metrics_raises(tmp_path):
 
 def test_cli(tmp_path, capsys):
     d = make_sweep(tmp_path, "hopper", diverged={0})
-    report.main([str(d), "--out", str(tmp_path / "cli")])
+    report_cli.main([str(d), "--out", str(tmp_path / "cli")])
     out = capsys.readouterr().out
     assert "s per 1e6 updates" in out and "diverged runs" in out and "run 0 seed 0" in out
     rep = json.loads((tmp_path / "cli" / "report.json").read_text())

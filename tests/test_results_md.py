@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from proto_brax import report
+from proto_brax.analysis import locomotion_plan, report
 from proto_brax.checkpoints import bundle_dataset_record
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -228,8 +228,8 @@ def test_dataset_curves_are_mean_and_std_over_seeds_from_pi0(published, tmp_path
 
 
 def test_locomotion_runner_publishes_a_finished_sweep_reproducibly(tmp_path):
-    """benchmarks/locomotion.py's publish: config, gzipped metrics (same bytes on a rerun) and summary last."""
-    loco = load_module("locomotion")
+    """benchmarks/locomotion.py's publish (``locomotion_plan.publish``): config, gzipped metrics (same bytes on a
+    rerun) and summary last."""
     src = tmp_path / "runs" / "hopper-medium" / "direct"
     (src / "report").mkdir(parents=True)
     rows = "".join(json.dumps({"step": s, "normalized_score": float(s)}) + "\n" for s in (0, 100))
@@ -237,14 +237,13 @@ def test_locomotion_runner_publishes_a_finished_sweep_reproducibly(tmp_path):
     (src / "config.json").write_text("{}")
     (src / "summary.json").write_text('{"points": []}')
     (src / "report" / "curves.png").write_bytes(b"png")
-    args = loco.Args(runs=tmp_path / "runs", results=tmp_path / "results")
-    loco.publish("hopper-medium", "direct", args)
     dst = tmp_path / "results" / "hopper-medium" / "direct"
+    locomotion_plan.publish(src, dst)
     first = (dst / "metrics.jsonl.gz").read_bytes()
     assert gzip.decompress(first).decode() == rows
     assert (dst / "summary.json").read_text() == '{"points": []}' and (dst / "report" / "curves.png").exists()
     assert sorted(p.name for p in dst.iterdir()) == ["config.json", "metrics.jsonl.gz", "report", "summary.json"]
-    loco.publish("hopper-medium", "direct", args)
+    locomotion_plan.publish(src, dst)
     assert (dst / "metrics.jsonl.gz").read_bytes() == first
 
 
@@ -274,8 +273,9 @@ def test_a_dataset_free_sweep_is_shared_by_its_envs_datasets_and_counted_once(tm
     publish(results, "hopper-medium", "sac-scratch")
     publish(results, "hopper-random", "proto-sac")
     args = loco.Args(datasets=("hopper-random",), methods=("sac-scratch",), runs=tmp_path / "runs", results=results)
-    assert loco.shared_sweep("walker2d-medium", "sac-scratch", args) is None
-    assert loco.shared_sweep("hopper-random", "proto-sac", args) is None  # trains on its dataset: never shared
+    assert locomotion_plan.shared_sweep("walker2d-medium", "sac-scratch", results) is None
+    # proto-sac trains on its dataset: never shared
+    assert locomotion_plan.shared_sweep("hopper-random", "proto-sac", results) is None
     loco.main(args)
     assert "the same runs as hopper-medium" in capsys.readouterr().out
     copy = results / "hopper-random" / "sac-scratch"
@@ -291,23 +291,59 @@ def test_a_dataset_free_sweep_is_shared_by_its_envs_datasets_and_counted_once(tm
 
 def test_locomotion_publish_copies_a_finished_sweep_reproducibly(tmp_path):
     """publish: config, gzipped metrics (same bytes on a rerun), report PNGs and summary.json (written last)."""
-    locomotion = load_module("locomotion")
     src = tmp_path / "runs" / "hopper-medium" / "frozen"
     (src / "report").mkdir(parents=True)
     (src / "config.json").write_text('{"sweep": {}}')
     (src / "metrics.jsonl").write_text('{"chunk": 0, "step": 5}\n{"chunk": 1, "step": 10}\n')
     (src / "report" / "curves.png").write_bytes(b"\x89PNG fake")
     (src / "summary.json").write_text('{"steps": 10}')
-    args = locomotion.Args(runs=tmp_path / "runs", results=tmp_path / "results")
-    locomotion.publish("hopper-medium", "frozen", args)
     dst = tmp_path / "results" / "hopper-medium" / "frozen"
+    locomotion_plan.publish(src, dst)
     first = (dst / "metrics.jsonl.gz").read_bytes()
     assert gzip.decompress(first).decode() == (src / "metrics.jsonl").read_text()
     assert (dst / "report" / "curves.png").read_bytes() == b"\x89PNG fake"
     assert json.loads((dst / "summary.json").read_text()) == {"steps": 10}
-    locomotion.publish("hopper-medium", "frozen", args)
+    locomotion_plan.publish(src, dst)
     assert (dst / "metrics.jsonl.gz").read_bytes() == first
     assert sorted(p.name for p in dst.iterdir()) == ["config.json", "metrics.jsonl.gz", "report", "summary.json"]
+
+
+def test_locomotion_queue_runs_the_ablations_only_on_their_datasets():
+    plan = locomotion_plan.planned_sweeps(("hopper-medium", "ant-random"), ("proto-sac", "ablate-tau", "direct"),
+                                          ablation_datasets=("hopper-medium",))
+    assert plan == [("hopper-medium", "proto-sac"), ("hopper-medium", "ablate-tau"), ("hopper-medium", "direct"),
+                    ("ant-random", "proto-sac"), ("ant-random", "direct")]
+
+
+def test_locomotion_status_of_each_sweep_from_its_directories(tmp_path):
+    """``locomotion.py status``: published -> done; no bundle of the method's first kind -> the command that makes it
+    (with the variant's flags); a dataset-free method published on another dataset of the env -> shared; a working
+    directory -> started; else pending."""
+    runs, results, pretrained = tmp_path / "runs", tmp_path / "results", tmp_path / "pretrained"
+
+    def status(dataset, method):
+        return locomotion_plan.sweep_status(dataset, method, runs, results, pretrained)
+
+    for d in (results / "hopper-medium" / "proto-sac", results / "hopper-medium" / "sac-scratch",
+              pretrained / "hopper-random" / "eql", runs / "hopper-random" / "direct"):
+        d.mkdir(parents=True)
+    for d in (results / "hopper-medium" / "proto-sac", results / "hopper-medium" / "sac-scratch"):
+        (d / "summary.json").write_text("{}")
+    (pretrained / "hopper-random" / "eql" / "metadata.json").write_text("{}")
+    (results / "hopper-medium" / "direct").mkdir(parents=True)  # an unfinished publish: no summary.json
+
+    assert status("hopper-medium", "proto-sac") == "done"
+    assert status("hopper-medium", "direct") == ("needs bundle: python -m proto_brax.pretrain --dataset hopper-medium "
+                                                 "--algo eql --out checkpoints/pretrained/hopper-medium/eql")
+    assert status("walker2d-random", "proto-official") == (
+        "needs bundle: python -m proto_brax.pretrain --dataset walker2d-random --algo eql --policy gaussian --hp "
+        "eql_weight_scale 1 eql_z_clip 7 --out checkpoints/pretrained/walker2d-random/eql-official")
+    assert status("hopper-random", "sac-scratch") == "shared: copies hopper-medium's on run"
+    assert status("walker2d-random", "sac-scratch") == "pending"  # hopper's sweep is not walker2d's
+    assert status("hopper-random", "direct") == "started"
+    assert status("hopper-random", "ablate-eta") == "pending"  # a PROTO-SAC sweep from the same eql bundle
+    assert status("hopper-random", "iql") == ("needs bundle: python -m proto_brax.pretrain --dataset hopper-random "
+                                              "--algo iql --out checkpoints/pretrained/hopper-random/iql")
 
 
 def test_datasets_record_keeps_each_build_once_with_where_it_was_seen(tmp_path):

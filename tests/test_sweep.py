@@ -15,6 +15,9 @@ import numpy as np
 import pytest
 
 from proto_brax import sweep
+from proto_brax.experiment.plan import REPO_ROOT, finetune_config, resolve_checkpoint, resolve_dataset, reward_transform
+from proto_brax.experiment.run import metric_rows
+from proto_brax.experiment.summary import steady_throughput, summarize_runs
 
 TINY = ["--env", "point", "--dataset", "none", "--hidden", "32", "32", "--batch-size", "32", "--learning-starts", "64",
         "--eval-episodes", "2", "--tau", "0", "0.01", "--eta", "0.9", "--seeds", "0", "1"]
@@ -105,11 +108,11 @@ def test_presets_set_defaults_that_flags_override():
     assert (am.env, am.tau, am.alpha0, am.value_reg_backup, am.clipped_double_q) == (
         "antmaze-medium", (5e-5,), (0.5,), False, False)
     assert am.steps == 4000 and am.pretrain_steps == 200_000 and am.pretrain_hp == {"alpha": 0.5}
-    assert sweep.resolve_dataset(am) == "antmaze-medium-diverse"
+    assert resolve_dataset(am) == "antmaze-medium-diverse"
     ad = sweep.parse_args(["--preset", "paper-adroit", "--env", "door", "--dataset", "D4RL/door/human-v2"])
     assert (ad.env, ad.tau, ad.alpha0, ad.value_reg_backup, ad.clipped_double_q, ad.pretrain_steps) == (
         "door", (5e-5,), (2.0,), False, True, 100_000)
-    assert sweep.resolve_dataset(ad) == "D4RL/door/human-v2"
+    assert resolve_dataset(ad) == "D4RL/door/human-v2"
     with pytest.raises(SystemExit, match="--preset needs one of"):
         sweep.parse_args(["--preset", "paper-mujocoo"])
 
@@ -122,12 +125,12 @@ def test_diverged_run_is_marked_while_others_continue():
     ft, _ = finetune_fn(TINY)
     grid = make_grid({"lr_critic": [1e-3, 1e9]}, seeds=[0], base=SCRATCH)
     _, m = run_grid(ft, grid)
-    rows = [r for c in range(TINY.num_chunks) for r in sweep._rows(c, jax_tree_chunk(m, c), grid, "point", 0.0)]
+    rows = [r for c in range(TINY.num_chunks) for r in metric_rows(c, jax_tree_chunk(m, c), grid, "point", 0.0)]
     good = [r for r in rows if r["lr_critic"] == 1e-3]
     bad = [r for r in rows if r["lr_critic"] == 1e9]
     assert not any(r["diverged"] for r in good) and all(np.isfinite(r["eval_return"]) for r in good)
     assert any(r["diverged"] for r in bad)
-    summary = sweep.summarize_runs(rows, ["lr_critic"])
+    summary = summarize_runs(rows, ["lr_critic"])
     by = {s["lr_critic"]: s for s in summary}
     assert by[1e9]["diverged_seeds"] == [0] and by[1e-3]["diverged_seeds"] == []
 
@@ -175,12 +178,12 @@ def test_pretrain_then_finetune_in_one_command(tmp_path):
 
 def test_auto_dataset_and_checkpoint_resolution():
     args = sweep.SweepArgs(env="walker2d")
-    assert sweep.resolve_dataset(args) == "walker2d-medium"
-    assert sweep.resolve_dataset(dataclasses.replace(args, dataset="none")) is None
-    assert sweep.resolve_checkpoint(dataclasses.replace(args, checkpoint="none")) is None
-    assert sweep.resolve_checkpoint(dataclasses.replace(args, env="point")) is None  # no committed point bundle
-    hm = sweep.resolve_checkpoint(sweep.SweepArgs())
-    committed = sweep.REPO_ROOT / "checkpoints" / "pretrained" / "hopper-medium" / "eql"
+    assert resolve_dataset(args) == "walker2d-medium"
+    assert resolve_dataset(dataclasses.replace(args, dataset="none")) is None
+    assert resolve_checkpoint(dataclasses.replace(args, checkpoint="none")) is None
+    assert resolve_checkpoint(dataclasses.replace(args, env="point")) is None  # no committed point bundle
+    hm = resolve_checkpoint(sweep.SweepArgs())
+    committed = REPO_ROOT / "checkpoints" / "pretrained" / "hopper-medium" / "eql"
     assert hm == (committed if (committed / "metadata.json").exists() else None)
 
 
@@ -191,21 +194,21 @@ def test_reward_transform_resolution():
     from proto_brax.data.dataset import return_range_scale
 
     args = sweep.SweepArgs(env="hopper")
-    assert sweep.reward_transform(args, {"reward_scale": 0.5, "reward_shift": 0.0}, None) == {
+    assert reward_transform(args, {"reward_scale": 0.5, "reward_shift": 0.0}, None) == {
         "reward_scale": 0.5, "reward_shift": 0.0}
-    assert sweep.reward_transform(args, {}, None) == {"reward_scale": 1.0, "reward_shift": 0.0}  # pre-transform bundle
+    assert reward_transform(args, {}, None) == {"reward_scale": 1.0, "reward_shift": 0.0}  # pre-transform bundle
     with pytest.raises(ValueError, match="pretrained with reward_scale 0.5"):
-        sweep.reward_transform(dataclasses.replace(args, reward_scale=1.0), {"reward_scale": 0.5}, None)
-    assert sweep.reward_transform(dataclasses.replace(args, reward_scale=0.5), {"reward_scale": 0.5}, None)[
+        reward_transform(dataclasses.replace(args, reward_scale=1.0), {"reward_scale": 0.5}, None)
+    assert reward_transform(dataclasses.replace(args, reward_scale=0.5), {"reward_scale": 0.5}, None)[
         "reward_scale"] == 0.5
     data = point_dataset()  # several episodes with different returns: hopper's rule applies to any data
-    assert sweep.reward_transform(args, None, data)["reward_scale"] == pytest.approx(return_range_scale(data))
-    assert sweep.reward_transform(args, None, None) == {"reward_scale": 1.0, "reward_shift": 0.0}  # online only
-    assert sweep.reward_transform(dataclasses.replace(args, reward_scale=3.0, reward_shift=-2.0), None, data) == {
+    assert reward_transform(args, None, data)["reward_scale"] == pytest.approx(return_range_scale(data))
+    assert reward_transform(args, None, None) == {"reward_scale": 1.0, "reward_shift": 0.0}  # online only
+    assert reward_transform(dataclasses.replace(args, reward_scale=3.0, reward_shift=-2.0), None, data) == {
         "reward_scale": 3.0, "reward_shift": -2.0}
-    assert sweep.reward_transform(sweep.SweepArgs(env="point"), None, data) == {"reward_scale": 1.0,
+    assert reward_transform(sweep.SweepArgs(env="point"), None, data) == {"reward_scale": 1.0,
                                                                                 "reward_shift": 0.0}
-    assert sweep.reward_transform(sweep.SweepArgs(env="antmaze-umaze"), None, None) == {"reward_scale": 1.0,
+    assert reward_transform(sweep.SweepArgs(env="antmaze-umaze"), None, None) == {"reward_scale": 1.0,
                                                                                         "reward_shift": -1.0}
 
 
@@ -216,12 +219,12 @@ def test_summary_reports_success_where_the_rows_have_it():
         return [{"seed": s, "tau": 0.005, "step": step, "eval_return": 1.0, "normalized_score": 1.0, "dev_pi0": 0.0,
                  "diverged": False, **extra} for s, extra in extra_by_seed.items() for step in (100, 200)]
 
-    adroit = sweep.summarize_runs(rows({0: {"success_rate": 0.2}, 1: {"success_rate": 0.6}}), ["tau"])[0]
+    adroit = summarize_runs(rows({0: {"success_rate": 0.2}, 1: {"success_rate": 0.6}}), ["tau"])[0]
     assert adroit["final_success_rate"]["mean"] == pytest.approx(0.4) and "final_steps_to_goal" not in adroit
-    goal = sweep.summarize_runs(rows({0: {"success_rate": 1.0, "steps_to_goal": 300.0},
+    goal = summarize_runs(rows({0: {"success_rate": 1.0, "steps_to_goal": 300.0},
                                       1: {"success_rate": 0.5, "steps_to_goal": 500.0}}), ["tau"])[0]
     assert goal["final_success_rate"]["mean"] == 0.75 and goal["final_steps_to_goal"]["mean"] == 400.0
-    loco = sweep.summarize_runs(rows({0: {}, 1: {}}), ["tau"])[0]
+    loco = summarize_runs(rows({0: {}, 1: {}}), ["tau"])[0]
     assert "final_success_rate" not in loco and "final_steps_to_goal" not in loco
 
 
@@ -230,8 +233,8 @@ def test_steady_throughput_leaves_out_the_first_and_the_warm_up_chunks():
     rows = [{"chunk": c, "run": r, "updates": u, "grid_updates_per_s": v}
             for c, u, v in ((0, 100, 5.0), (1, 50, 40.0), (2, 100, 90.0), (3, 100, 110.0)) for r in range(3)]
     rows.append({"initial": True, "chunk": -1, "grid_updates_per_s": float("nan")})  # π₀'s row
-    assert sweep.steady_throughput(rows, 100) == 100.0
-    assert sweep.steady_throughput(rows[:6], 100) is None
+    assert steady_throughput(rows, 100) == 100.0
+    assert steady_throughput(rows[:6], 100) is None
 
 
 def test_help_lists_every_registered_env(capsys):
@@ -249,8 +252,8 @@ def test_critic_layer_norm_rule_is_the_registrys():
 
     assert default_layer_norm("hopper") and default_layer_norm("ant-v5")
     assert not default_layer_norm("halfcheetah") and not default_layer_norm("halfcheetah-v5")
-    cfg = sweep._finetune_config(sweep.SweepArgs(env="halfcheetah", dataset="none", checkpoint="none"))
+    cfg = finetune_config(sweep.SweepArgs(env="halfcheetah", dataset="none", checkpoint="none"))
     assert cfg.net.critic_layer_norm is False
-    cfg = sweep._finetune_config(sweep.SweepArgs(env="halfcheetah", dataset="none", checkpoint="none",
+    cfg = finetune_config(sweep.SweepArgs(env="halfcheetah", dataset="none", checkpoint="none",
                                                  critic_layer_norm=True))
     assert cfg.net.critic_layer_norm is True

@@ -1,3 +1,4 @@
-"""What the runs mean and what they cost: statistics (IQM, bootstrap CIs), the published locomotion benchmark's plan
-and its RESULTS.md, and the cost benchmarks' interleaved timing (``timing``). The per-sweep plots stay in
-``proto_brax.report`` (``python -m proto_brax.report``)."""
+"""What the runs mean and what they cost: statistics (IQM, bootstrap CIs: ``stats``), a sweep's plots
+(``report``; ``python -m proto_brax.report``), the published locomotion benchmark's plan and runner logic
+(``locomotion_plan``) and its RESULTS.md (``results_md``), the cost benchmarks' interleaved timing (``timing``,
+``throughput``) and the MJX-against-native-MuJoCo cross-checks (``crosscheck``)."""

@@ -32,16 +32,16 @@ import numpy as np
 import tyro
 
 from proto_brax.analysis.locomotion_plan import ABLATIONS, DATASETS, ETA0, PAPER_METHODS, TAU0, method_of
+from proto_brax.analysis.report import Sweep, load_sweep
 from proto_brax.analysis.stats import iqm_ci
 from proto_brax.checkpoints import bundle_dataset_record
-from proto_brax.datasets import generation_numerics_pinned
+from proto_brax.data.cache import generation_numerics_pinned
+from proto_brax.experiment.summary import lowest_early_scores
 from proto_brax.files import (
     atomic_write,
     write_json_atomic,
     write_text_atomic,
 )
-from proto_brax.report import Sweep, load_sweep
-from proto_brax.sweep import lowest_early_scores
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository (an editable install)
 

@@ -31,8 +31,8 @@ def index_markdown(root: Path) -> str:
               "| env | snapshots | steps | final eval / behaviour return | medium snapshot | its behaviour return "
               "(normalized) |", "|---|---|---|---|---|---|"]
     from proto_brax import envs
+    from proto_brax.data.cache import reference_returns
     from proto_brax.data.generate import list_snapshots, pick_expert_medium
-    from proto_brax.datasets import reference_returns
 
     for env_dir in sorted((Path(root) / "behavior").glob("*")):
         snaps = list_snapshots(env_dir.name, Path(root) / "behavior") if any(env_dir.glob("step_*")) else []
