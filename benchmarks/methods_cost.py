@@ -31,7 +31,6 @@ import tyro
 from proto_brax import envs
 from proto_brax.agents.registry import METHODS, agent, get_method
 from proto_brax.analysis.timing import Case, aot, log, run_interleaved, synthetic_transitions, versions
-from proto_brax.config import HParams
 from proto_brax.data.dataset import with_returns_to_go
 from proto_brax.experiment.args import sweep_args
 from proto_brax.experiment.plan import finetune_config
@@ -93,7 +92,7 @@ def main(args: Args) -> dict:
             jax.random.PRNGKey(0), rows, env.observation_size, env.action_size)
         if data is not None and agent(cfg.algo).mc_returns:
             data = with_returns_to_go(jax.device_get(data), 0.99)
-        hp = HParams.create(**g["hp"])
+        hp = ft.hparams.create(**g["hp"])
         state = jax.jit(ft.init)(hp, jax.random.PRNGKey(1), random_bundle(cfg, env, hp), data)
         log(f"compiling {g['methods']} ({cfg.algo}, sampling {cfg.sampling}, regularizer {cfg.regularizer})")
         compiled, compile_s = aot(ft.chunk, state, hp, data, jnp.int32(0), donate_argnums=(0,))

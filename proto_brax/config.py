@@ -24,9 +24,13 @@ from proto_brax.networks import NetworkConfig
 
 @struct.dataclass
 class HParams:
-    """Traced scalar hyper-parameters (defaults: PROTO paper / reference code for MuJoCo, shared/FACTS.md).
+    """Traced scalar hyper-parameters every agent shares (defaults: PROTO paper / reference code for MuJoCo,
+    shared/FACTS.md): PROTO's τ, η, α₀ schedule, the discount, the Polyak speed and the learning rates.
 
-    Each leaf is a float32 scalar for one run, or an array with a leading grid axis for a vmapped sweep.
+    An agent with hyper-parameters of its own subclasses this in its module (``sac.SACHParams``,
+    ``td3.TD3HParams``, ...) and names the subclass in its ``OnlineAlgorithm.hparams``: a method's grid axes and
+    ``--hp`` names are the fields of its agent's class. Each leaf is a float32 scalar for one run, or an array with a
+    leading grid axis for a vmapped sweep.
     """
 
     tau: jax.Array = 5e-3  # π̄ Polyak speed: π̄ ← τ π + (1 − τ) π̄ (τ = 0: Frozen, π̄ stays π₀)
@@ -38,57 +42,51 @@ class HParams:
     target_tau: jax.Array = 5e-3  # Polyak speed of the target critic (and TD3's target actor)
     lr_actor: jax.Array = 3e-4
     lr_critic: jax.Array = 3e-4
-    lr_alpha: jax.Array = 3e-4  # learning rate of SAC's entropy temperature
-    alpha_sac_init: jax.Array = 0.01  # initial SAC entropy temperature (reference code: 0.01 when finetuning)
-    target_entropy_scale: jax.Array = -0.5  # target entropy = scale × |A| (reference code: −|A|/2)
-    beta: jax.Array = 4.0  # TD3: λ = β / mean|Q| (paper: 4)
-    policy_noise: jax.Array = 0.2  # TD3 target-policy smoothing noise
-    noise_clip: jax.Array = 0.5
-    expl_noise: jax.Array = 0.1  # TD3 exploration noise σ
-    # Baselines (agents.registry): IQL / PEX (IQL's MuJoCo values, Kostrikov et al. 2022), AWAC (CORL's defaults).
-    expectile: jax.Array = 0.7  # IQL / PEX expectile of the value regression
-    awr_temperature: jax.Array = 3.0  # IQL / PEX inverse temperature β of the extraction weight exp(β (Q − V))
-    awr_weight_max: jax.Array = 100.0  # extraction weights are clipped to [0, awr_weight_max] (IQL, PEX, AWAC)
-    awac_lambda: jax.Array = 1.0  # AWAC temperature λ of the weight exp(A / λ)
-    pex_inv_temperature: jax.Array = 10.0  # PEX: P(choose πᵢ) ∝ exp(inv_temperature · Q(s, aᵢ)) (PEX code default)
-    cql_alpha: jax.Array = 5.0  # CQL / Cal-QL conservative weight α_cql (CQL's MuJoCo min_q_weight)
-    off2on_temperature: jax.Array = 5.0  # Off2On: replay priority ∝ w^(1/T) (reference code T = 5)
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(cls))
 
     @classmethod
     def create(cls, **kwargs) -> "HParams":
-        """Build from Python numbers (float32 scalars), rejecting unknown names."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(kwargs) - names
+        """Build from Python numbers (float32 scalars), rejecting names that are not this class's fields."""
+        unknown = set(kwargs) - set(cls.names())
         if unknown:
-            raise ValueError(f"Unknown hyper-parameter(s) {sorted(unknown)}: valid names are {sorted(names)}.")
+            raise ValueError(f"Unknown hyper-parameter(s) {sorted(unknown)} of {cls.__name__}: valid names are "
+                             f"{sorted(cls.names())}.")
         defaults = {f.name: f.default for f in dataclasses.fields(cls)}
         return cls(**{k: jnp.asarray(kwargs.get(k, v), jnp.float32) for k, v in defaults.items()})
+
+    @classmethod
+    def check(cls, v: dict[str, np.ndarray]) -> None:
+        """Host-side range checks of the leaves ``v`` (name -> values); a subclass adds its own fields' checks."""
+        if np.any((v["tau"] < 0) | (v["tau"] > 1)):
+            raise ValueError(f"tau must lie in [0, 1] (0 = Frozen, π̄ fixed at π₀); got {v['tau']}.")
+        for name in ("eta", "alpha0", "alpha_min"):
+            if np.any(v[name] < 0):
+                raise ValueError(f"{name} must be >= 0; got {v[name]}. Use alpha0 0 for direct finetuning.")
+        if np.any(v["anneal_horizon"] <= 0):
+            raise ValueError(f"anneal_horizon must be > 0; got {v['anneal_horizon']}.")
+        for name in ("gamma", "target_tau"):
+            if np.any((v[name] < 0) | (v[name] > 1)):
+                raise ValueError(f"{name} must lie in [0, 1]; got {v[name]}.")
+        positive("lr_actor", "lr_critic", v=v)
+
+
+def positive(*names: str, v: dict[str, np.ndarray]) -> None:
+    """Each named leaf must be > 0."""
+    for name in names:
+        if np.any(v[name] <= 0):
+            raise ValueError(f"{name} must be > 0; got {v[name]}.")
 
 
 def validate_hparams(hp: HParams) -> None:
     """Host-side checks, before anything compiles. Works on scalars and on grid-batched leaves."""
-    v = {f.name: np.asarray(getattr(hp, f.name)) for f in dataclasses.fields(hp)}
+    v = {name: np.asarray(getattr(hp, name)) for name in type(hp).names()}
     for name, arr in v.items():
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"Hyper-parameter {name} must be finite, got {arr}.")
-    if np.any((v["tau"] < 0) | (v["tau"] > 1)):
-        raise ValueError(f"tau must lie in [0, 1] (0 = Frozen, π̄ fixed at π₀); got {v['tau']}.")
-    for name in ("eta", "alpha0", "alpha_min"):
-        if np.any(v[name] < 0):
-            raise ValueError(f"{name} must be >= 0; got {v[name]}. Use alpha0 0 for direct finetuning.")
-    if np.any(v["anneal_horizon"] <= 0):
-        raise ValueError(f"anneal_horizon must be > 0; got {v['anneal_horizon']}.")
-    if np.any((v["gamma"] < 0) | (v["gamma"] > 1)):
-        raise ValueError(f"gamma must lie in [0, 1]; got {v['gamma']}.")
-    if np.any((v["target_tau"] < 0) | (v["target_tau"] > 1)):
-        raise ValueError(f"target_tau must lie in [0, 1]; got {v['target_tau']}.")
-    if np.any((v["expectile"] <= 0) | (v["expectile"] >= 1)):
-        raise ValueError(f"expectile must lie in (0, 1); got {v['expectile']}.")
-    if np.any(v["cql_alpha"] < 0):
-        raise ValueError(f"cql_alpha must be >= 0; got {v['cql_alpha']}.")
-    for name in ("lr_actor", "lr_critic", "lr_alpha", "alpha_sac_init", "awac_lambda", "awr_weight_max"):
-        if np.any(v[name] <= 0):
-            raise ValueError(f"{name} must be > 0; got {v[name]}.")
+    type(hp).check(v)
 
 
 @dataclasses.dataclass(frozen=True)

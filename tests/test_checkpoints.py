@@ -13,6 +13,7 @@ from test_engine import SCRATCH, TINY, finetune_fn, point_dataset
 
 from proto_brax import checkpoints, pretrain, sweep
 from proto_brax.agents.learner import Pretrained
+from proto_brax.agents.sac import SACHParams
 from proto_brax.cli import checkpoints as checkpoints_cli
 from proto_brax.data.dataset import save_npz
 from proto_brax.networks import NetworkConfig
@@ -50,7 +51,7 @@ def test_finetune_from_restored_bundle_equals_in_memory(bundle):
     state, _ = checkpoints.load_bundle(root / "eql")
     cfg = dataclasses.replace(TINY, sampling="symmetric", steps=400, eval_every=200)
     ft, single = finetune_fn(cfg)
-    hp = jax.tree.map(lambda x: x, __import__("proto_brax.config", fromlist=["HParams"]).HParams.create(**SCRATCH))
+    hp = jax.tree.map(lambda x: x, SACHParams.create(**SCRATCH))
     restored = Pretrained(actor=jax.tree.map(lambda x: x[1], state.actor), critic=jax.tree.map(lambda x: x[1],
                                                                                                  state.critic))
     in_memory = jax.tree.map(lambda x: np.array(x), restored)  # an independent host copy

@@ -16,7 +16,8 @@ from proto_brax import envs
 from proto_brax.agents.bc import bc_update
 from proto_brax.agents.common import adam
 from proto_brax.agents.learner import Pretrained
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.agents.sac import SACHParams
+from proto_brax.config import FinetuneConfig
 from proto_brax.data.dataset import Transition
 from proto_brax.data.generate import collect, flatten_env_major, uniform_policy
 from proto_brax.data.replay import replay_init, replay_insert, replay_sample
@@ -207,12 +208,13 @@ def test_vmapped_grid_run_equals_single_run():
     and RL amplifies such differences over time, so later evaluations are held to 2% (measured drift: ~0.5%).
     """
     ft, single = finetune_fn(TINY)
-    grid = make_grid({"tau": [0.0, 0.01], "lr_actor": [1e-3]}, seeds=[0, 1], base={**SCRATCH, "alpha0": 0.5})
+    grid = make_grid({"tau": [0.0, 0.01], "lr_actor": [1e-3]}, seeds=[0, 1], base={**SCRATCH, "alpha0": 0.5},
+                     hparams=SACHParams)
     state, metrics = run_grid(ft, grid)
     assert metrics["eval_return"].shape == (TINY.num_chunks, 4)
     for i in (0, 3):
         point = grid.points[i]
-        hp = HParams.create(**{k: v for k, v in point.items() if k != "seed"})
+        hp = SACHParams.create(**{k: v for k, v in point.items() if k != "seed"})
         _, m = single(hp, jax.random.PRNGKey(point["seed"]), None, None)
         for k in ("eval_return", "critic_loss", "actor_loss", "dev_pi0", "q_mean"):
             np.testing.assert_allclose(metrics[k][0, i], np.asarray(m[k])[0], rtol=1e-4, atol=1e-4, err_msg=k)
@@ -225,9 +227,10 @@ def test_a_grid_of_one_run_per_device_runs_the_unbatched_program_bit_for_bit():
     a batch-of-one vmap rounds differently."""
     cfg = dataclasses.replace(TINY, net=dataclasses.replace(TINY.net, critic_layer_norm=True))
     ft = online.make_finetune(cfg)
-    grid = make_grid({"tau": [0.01]}, seeds=[5], base={**SCRATCH, "alpha0": 0.5})
+    grid = make_grid({"tau": [0.01]}, seeds=[5], base={**SCRATCH, "alpha0": 0.5},
+                     hparams=SACHParams)
     _, metrics = run_grid(ft, grid)
-    hp = HParams.create(**{k: v for k, v in grid.points[0].items() if k != "seed"})
+    hp = SACHParams.create(**{k: v for k, v in grid.points[0].items() if k != "seed"})
     state = jax.jit(ft.init)(hp, jax.random.PRNGKey(5), None, None)
     chunk = jax.jit(ft.chunk)
     for c in range(cfg.num_chunks):
@@ -238,7 +241,7 @@ def test_a_grid_of_one_run_per_device_runs_the_unbatched_program_bit_for_bit():
 
 def test_same_seed_same_result_and_no_retrace():
     ft, single = finetune_fn(TINY)
-    hp = HParams.create(**SCRATCH)
+    hp = SACHParams.create(**SCRATCH)
     chunk = jax.jit(ft.chunk)
     before = online.TRACE_COUNT["chunk"]
     results = []
@@ -257,7 +260,7 @@ def test_same_seed_same_result_and_no_retrace():
 def test_frozen_keeps_pibar_equal_to_pi0_bit_exactly():
     cfg = dataclasses.replace(TINY, sampling="symmetric")
     ft, single = finetune_fn(cfg)
-    hp = HParams.create(**{**SCRATCH, "tau": 0.0, "alpha0": 1.0})
+    hp = SACHParams.create(**{**SCRATCH, "tau": 0.0, "alpha0": 1.0})
     state, _ = single(hp, jax.random.PRNGKey(0), None, point_dataset())
     jax.tree.map(np.testing.assert_array_equal, state.learner.pibar, state.learner.pi0)
     assert not np.array_equal(*jax.tree.leaves((state.learner.actor, state.learner.pi0))[:2])  # the actor moved
@@ -266,7 +269,8 @@ def test_frozen_keeps_pibar_equal_to_pi0_bit_exactly():
 def test_td3_grid_runs_and_is_finite():
     cfg = dataclasses.replace(TINY, algo="td3", steps=400)
     ft, _ = finetune_fn(cfg)
-    grid = make_grid({"alpha0": [0.0, 1.0]}, seeds=[0], base={"lr_actor": 1e-3, "lr_critic": 1e-3})
+    grid = make_grid({"alpha0": [0.0, 1.0]}, seeds=[0], base={"lr_actor": 1e-3, "lr_critic": 1e-3},
+                     hparams=ft.hparams)
     _, metrics = run_grid(ft, grid)
     assert np.all(np.isfinite(metrics["critic_loss"])) and np.all(np.isfinite(metrics["eval_return"]))
 
@@ -277,7 +281,7 @@ def test_td3_grid_runs_and_is_finite():
 def test_sac_from_scratch_learns_point():
     """SAC (α₀ = 0, random init) goes from the random policy's score (≈ 0 normalized) to ≥ 80 normalized."""
     ft, single = finetune_fn(TINY)
-    _, m = single(HParams.create(**SCRATCH), jax.random.PRNGKey(0), None, None)
+    _, m = single(SACHParams.create(**SCRATCH), jax.random.PRNGKey(0), None, None)
     score = np.asarray(envs.normalized_score("point", m["eval_return"]))
     assert score[-1] >= 80.0, score
 
@@ -306,7 +310,7 @@ def test_proto_from_bc_pretrained_policy_starts_high_and_stays_high():
     cfg = dataclasses.replace(TINY, sampling="symmetric")
     ft, single = finetune_fn(cfg)
     pre = Pretrained(actor=actor)
-    hp = HParams.create(**{**SCRATCH, "alpha0": 1.0, "alpha_sac_init": 0.01, "target_entropy_scale": -0.5})
+    hp = SACHParams.create(**{**SCRATCH, "alpha0": 1.0, "alpha_sac_init": 0.01, "target_entropy_scale": -0.5})
     learner0 = ft.init(hp, jax.random.PRNGKey(0), pre, data).learner
     pi0_return = float(jnp.mean(jax.jit(ft.evaluate)(learner0, jax.random.PRNGKey(9))[0]))
     assert envs.normalized_score("point", pi0_return) >= 80.0
@@ -355,7 +359,7 @@ def test_dataset_of_wrong_env_is_rejected():
     ft, _ = finetune_fn(TINY)
     bad = _rows(10, 0.0, obs=11, act=3)
     with pytest.raises(ValueError, match="observations have size 11"):
-        ft.init(HParams.create(), jax.random.PRNGKey(0), None, bad)
+        ft.init(SACHParams.create(), jax.random.PRNGKey(0), None, bad)
 
 
 def test_optax_injected_learning_rate_is_traced():
@@ -370,7 +374,7 @@ def test_regularizer_off_equals_alpha0_zero():
     """The static switch that skips π̄ work changes cost, not results: it equals α₀ = 0 with the term on."""
     ft_on, on = finetune_fn(TINY)
     ft_off, off = finetune_fn(dataclasses.replace(TINY, regularizer=False))
-    hp = HParams.create(**SCRATCH)
+    hp = SACHParams.create(**SCRATCH)
     s_on, m_on = on(hp, jax.random.PRNGKey(5), None, None)
     s_off, m_off = off(hp, jax.random.PRNGKey(5), None, None)
     # The two programs fuse differently, so float round-off differs and training amplifies it: elementwise equality
@@ -387,7 +391,7 @@ def test_online_rewards_enter_the_buffer_transformed_and_returns_stay_raw():
     """reward_scale · r + reward_shift in the buffer (the offline data's units); reported returns are raw.
     No updates (learning_starts > steps), so both runs collect the same trajectories."""
     base = dataclasses.replace(TINY, steps=100, eval_every=100, eval_episodes=1, learning_starts=10_000)
-    hp = HParams.create(**SCRATCH)
+    hp = SACHParams.create(**SCRATCH)
     runs = []
     for cfg in (base, dataclasses.replace(base, reward_scale=3.0, reward_shift=-1.0)):
         ft = online.make_finetune(cfg)

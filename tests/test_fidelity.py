@@ -18,7 +18,6 @@ from proto_brax.agents import sac
 from proto_brax.agents.insample import weighted_log_likelihood
 from proto_brax.agents.learner import Pretrained, init_learner
 from proto_brax.agents.registry import agent
-from proto_brax.config import HParams
 from proto_brax.data.replay import replay_sample
 from proto_brax.fidelity import Fidelity
 from proto_brax.networks import NetworkConfig, make_networks
@@ -31,7 +30,7 @@ def test_online_preload_copies_distinct_dataset_rows_into_the_buffer():
     data = point_dataset()
     cfg = dataclasses.replace(CFG, fidelity=Fidelity(online_preload=300))
     assert cfg.capacity == 400 + 300  # room for every online step besides the preload
-    state = jax.jit(online.make_finetune(cfg).init)(HParams.create(), jax.random.PRNGKey(0), None, data)
+    state = jax.jit(online.make_finetune(cfg).init)(sac.SACHParams.create(), jax.random.PRNGKey(0), None, data)
     assert int(state.buffer.size) == 300 and int(state.buffer.position) == 300
     rows = np.asarray(state.buffer.data.observations[:300])
     acts = np.asarray(state.buffer.data.actions[:300])
@@ -50,7 +49,7 @@ def test_online_preload_copies_distinct_dataset_rows_into_the_buffer():
 def test_online_preload_rejects_runs_without_a_dataset():
     cfg = dataclasses.replace(CFG, sampling="online", fidelity=Fidelity(online_preload=10))
     with pytest.raises(ValueError, match="online_preload"):
-        online.make_finetune(cfg).init(HParams.create(), jax.random.PRNGKey(0), None, None)
+        online.make_finetune(cfg).init(sac.SACHParams.create(), jax.random.PRNGKey(0), None, None)
     with pytest.raises(ValueError, match="online_preload must be >= 0"):
         dataclasses.replace(CFG, fidelity=Fidelity(online_preload=-1))
 
@@ -60,7 +59,8 @@ def test_behaviour_evaluation_acts_like_training(algo):
     """eval_mode='behaviour' (official AntMaze evaluation): the same key gives the same returns, and the returns
     differ from the deterministic evaluation of the same learner."""
     cfg = dataclasses.replace(CFG, algo=algo, eval_episodes=6)
-    hp = HParams.create(**SCRATCH, expl_noise=0.5)
+    hp_cls = agent(algo).hparams
+    hp = hp_cls.create(**{k: v for k, v in {**SCRATCH, "expl_noise": 0.5}.items() if k in hp_cls.names()})
     ft_det = online.make_finetune(cfg)
     ft_beh = online.make_finetune(dataclasses.replace(cfg, fidelity=Fidelity(eval_mode="behaviour")))
     learner = ft_det.init(hp, jax.random.PRNGKey(3), None, point_dataset()).learner
@@ -73,7 +73,7 @@ def test_behaviour_evaluation_acts_like_training(algo):
 
 def test_official_fidelity_changes_the_run():
     """Fidelity.official() switches real choices: the same seed gives another critic-loss trajectory."""
-    data, hp = point_dataset(), HParams.create()
+    data, hp = point_dataset(), sac.SACHParams.create()
     base = dataclasses.replace(CFG, steps=200, eval_every=200)
     runs = {}
     official = dataclasses.replace(Fidelity.official(), carry_critic_state=False)  # (no bundle here: random π₀, Q₀)
@@ -93,7 +93,7 @@ OBS = 4  # the point task's observation size
 
 def _gaussian_learner(seed=0):
     nets = make_networks(GNET, 2)
-    hp = HParams.create(alpha_sac_init=0.2, gamma=0.9)
+    hp = sac.SACHParams.create(alpha_sac_init=0.2, gamma=0.9)
     lrn = init_learner(jax.random.PRNGKey(seed), nets, agent("sac"), hp, OBS, 2, None)
     # Distinct networks (and a log-std away from its init of 0) so that a swapped argument cannot pass.
     lrn = lrn.replace(actor=perturb(lrn.actor, jax.random.PRNGKey(seed + 1)),

@@ -15,7 +15,8 @@ from proto_brax.agents import proto, sac, td3
 from proto_brax.agents.common import polyak, temperature_loss
 from proto_brax.agents.learner import init_learner
 from proto_brax.agents.registry import agent
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.agents.td3 import TD3HParams
+from proto_brax.config import FinetuneConfig
 from proto_brax.data.dataset import Transition
 from proto_brax.fidelity import Fidelity
 from proto_brax.networks import NetworkConfig, make_networks, tanh_gaussian_log_prob
@@ -27,7 +28,8 @@ NET = NetworkConfig(hidden=(8, 8), critic_layer_norm=True)
 def _setup(algo: str, **cfg_kw):
     cfg = FinetuneConfig(env="point", algo=algo, net=NET, **cfg_kw)
     nets = make_networks(NET, ACT, deterministic=algo == "td3")
-    hp = HParams.create(alpha_sac_init=0.2, gamma=0.9)
+    hp_cls = agent(cfg.algo).hparams  # (TD3 has no temperature)
+    hp = hp_cls.create(**{k: v for k, v in dict(alpha_sac_init=0.2, gamma=0.9).items() if k in hp_cls.names()})
     lrn = init_learner(jax.random.PRNGKey(0), nets, agent(cfg.algo), hp, OBS, ACT, None)
     # Make every network distinct so that a swapped argument cannot pass.
     lrn = lrn.replace(
@@ -143,7 +145,7 @@ def test_td3_backup_penalizes_the_current_actor():
     """Zero smoothing noise, three distinct actors (π, π_targ, π̄): the target is the paper's Q̄(s′, π_targ(s′)) −
     α‖π(s′) − π̄(s′)‖². The old backup penalized ‖a′ − π̄(s′)‖² of the target action; it differs here."""
     cfg, nets, _, lrn, batch = _setup("td3")
-    hp = HParams.create(gamma=0.9, policy_noise=0.0)
+    hp = TD3HParams.create(gamma=0.9, policy_noise=0.0)
     assert lrn.actor_target is not None
     key, alpha = jax.random.PRNGKey(11), 1.3
     _, info = td3.critic_loss(lrn.critic, lrn, batch, key, alpha, hp, nets, cfg)
@@ -185,7 +187,7 @@ def test_td3_exploration_noise_clip():
     """td3_expl_noise_clip bounds the exploration noise (official 0.5); None leaves it unclipped."""
     cfg, nets, _, lrn, _ = _setup("td3")
     obs = jax.random.normal(jax.random.PRNGKey(13), (400, OBS))
-    key, hp = jax.random.PRNGKey(14), HParams.create(expl_noise=3.0)
+    key, hp = jax.random.PRNGKey(14), TD3HParams.create(expl_noise=3.0)
     a = np.asarray(nets.actor.apply(lrn.actor, obs), np.float64)
     eps = 3.0 * np.asarray(jax.random.normal(key, a.shape), np.float64)
     for clip in (0.5, None):

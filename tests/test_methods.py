@@ -28,7 +28,13 @@ from proto_brax.train.online import make_finetune
 OBS, ACT, B = 4, 2, 6
 NET = NetworkConfig(hidden=(8, 8))
 NETS = make_networks(NET, ACT)
-HP = HParams.create(gamma=0.9, awac_lambda=0.7, awr_temperature=2.0, expectile=0.8, pex_inv_temperature=3.0)
+HP_VALUES = dict(gamma=0.9, awac_lambda=0.7, awr_temperature=2.0, expectile=0.8, pex_inv_temperature=3.0)
+
+
+def hp_for(algo: str, **values) -> HParams:
+    """HP_VALUES (and ``values``) in the agent's own HParams class, each field it has."""
+    cls = agent(algo).hparams
+    return cls.create(**{k: v for k, v in {**HP_VALUES, **values}.items() if k in cls.names()})
 
 
 def _batch(seed=0):
@@ -36,7 +42,7 @@ def _batch(seed=0):
 
 
 def _learner(algo: str, pretrained=None, seed=1):
-    lrn = init_learner(jax.random.PRNGKey(seed), NETS, agent(algo), HP, OBS, ACT, pretrained)
+    lrn = init_learner(jax.random.PRNGKey(seed), NETS, agent(algo), hp_for(algo), OBS, ACT, pretrained)
     # Distinct, non-trivial parameters for every network (targets and π₀ differ from the online ones).
     fields = {f: getattr(lrn, f) for f in ("actor", "critic", "critic_target", "pi0", "value")
               if getattr(lrn, f) is not None}
@@ -51,7 +57,7 @@ CFG = FinetuneConfig(env="point", net=NET, algo="awac")
 
 def test_awac_critic_loss_matches_numpy():
     lrn, batch, key = _learner("awac"), _batch(), jax.random.PRNGKey(3)
-    loss, _ = awac.critic_loss(lrn.critic, lrn, batch, key, HP, NETS, CFG)
+    loss, _ = awac.critic_loss(lrn.critic, lrn, batch, key, hp_for("awac"), NETS, CFG)
     eps = np.asarray(jax.random.normal(key, (B, ACT)), np.float64)
     expected = ref.awac_critic_loss(lrn.actor, lrn.critic, lrn.critic_target, batch, eps, 0.9)
     np.testing.assert_allclose(loss, expected, rtol=2e-5)
@@ -60,14 +66,14 @@ def test_awac_critic_loss_matches_numpy():
 def test_awac_actor_loss_matches_numpy():
     """The update's actor loss: advantage-weighted likelihood with weights from the *updated* critic."""
     lrn, batch, key = _learner("awac"), _batch(1), jax.random.PRNGKey(4)
-    new, info = awac.update(lrn, batch, key, jnp.zeros(()), HP, NETS, CFG, jnp.zeros((), jnp.int32))
+    new, info = awac.update(lrn, batch, key, jnp.zeros(()), hp_for("awac"), NETS, CFG, jnp.zeros((), jnp.int32))
     _, k_adv = jax.random.split(key)
     eps = np.asarray(jax.random.normal(k_adv, (B, ACT)), np.float64)
     expected = ref.awac_actor_loss(lrn.actor, new.critic, batch, eps, 0.7, 100.0)
     np.testing.assert_allclose(info["actor_loss"], expected, rtol=2e-5)
     # Weights are clipped: a tiny λ saturates every positive advantage at w_max.
-    w = awac.advantage_weights(new.critic, lrn.actor, batch, k_adv, HP.replace(awac_lambda=jnp.float32(1e-6)), NETS,
-                               CFG)
+    tiny = hp_for("awac").replace(awac_lambda=jnp.float32(1e-6))
+    w = awac.advantage_weights(new.critic, lrn.actor, batch, k_adv, tiny, NETS, CFG)
     assert float(jnp.max(w)) == 100.0
 
 
@@ -77,11 +83,12 @@ def test_awac_actor_loss_matches_numpy():
 def test_pex_init_keeps_pi0_frozen_and_trains_a_fresh_policy():
     base = _learner("iql")
     pre = Pretrained(actor=base.actor, critic=base.critic, value=base.value)
-    lrn = init_learner(jax.random.PRNGKey(0), NETS, agent("pex"), HP, OBS, ACT, pre)
+    lrn = init_learner(jax.random.PRNGKey(0), NETS, agent("pex"), hp_for("pex"), OBS, ACT, pre)
     same = lambda a, b: all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))  # noqa
     assert same(lrn.pi0, pre.actor) and same(lrn.critic, pre.critic) and same(lrn.value, pre.value)
     assert not same(lrn.actor, pre.actor)  # the new policy starts from a random init
-    new, _ = pex.update(lrn, _batch(), jax.random.PRNGKey(2), jnp.zeros(()), HP, NETS, CFG, jnp.zeros((), jnp.int32))
+    new, _ = pex.update(lrn, _batch(), jax.random.PRNGKey(2), jnp.zeros(()), hp_for("pex"), NETS, CFG,
+                        jnp.zeros((), jnp.int32))
     assert same(new.pi0, pre.actor) and not same(new.actor, lrn.actor)
 
 
@@ -90,7 +97,7 @@ def test_pex_choice_follows_its_boltzmann_distribution():
     lrn = _learner("pex")
     obs = jax.random.normal(jax.random.PRNGKey(5), (4096, OBS))
     key = jax.random.PRNGKey(6)
-    action = pex.act(NETS, lrn, obs, key, HP, deterministic=False)
+    action = pex.act(NETS, lrn, obs, key, hp_for("pex"), deterministic=False)
     k_pi, _ = jax.random.split(key)
     a0, a1, q = pex.candidates(NETS, lrn, obs, k_pi, deterministic=False)
     p1 = np.asarray(jax.nn.softmax(3.0 * q, axis=-1)[:, 1], np.float64)
@@ -99,23 +106,24 @@ def test_pex_choice_follows_its_boltzmann_distribution():
     assert np.all(chose0 | chose1)  # every action is one of the two candidates
     assert 0.1 < p1.mean() < 0.9  # the test is not degenerate
     assert abs(chose1.sum() - p1.sum()) < 4 * np.sqrt(np.sum(p1 * (1 - p1))), (chose1.sum(), p1.sum())
-    greedy = pex.act(NETS, lrn, obs, key, HP, deterministic=True)
+    greedy = pex.act(NETS, lrn, obs, key, hp_for("pex"), deterministic=True)
     a0d, a1d, qd = pex.candidates(NETS, lrn, obs, k_pi, deterministic=True)
     np.testing.assert_array_equal(greedy, jnp.where((qd[:, 1] > qd[:, 0])[:, None], a1d, a0d))
 
 
 def test_pex_actor_loss_matches_numpy():
     lrn, batch, key = _learner("pex"), _batch(2), jax.random.PRNGKey(7)
-    new, info = pex.update(lrn, batch, key, jnp.zeros(()), HP, NETS, CFG, jnp.zeros((), jnp.int32))
-    chosen = pex.act(NETS, lrn, batch.observations, key, HP, deterministic=False)
+    new, info = pex.update(lrn, batch, key, jnp.zeros(()), hp_for("pex"), NETS, CFG, jnp.zeros((), jnp.int32))
+    chosen = pex.act(NETS, lrn, batch.observations, key, hp_for("pex"), deterministic=False)
     expected = ref.pex_actor_loss(lrn.actor, lrn.critic_target, new.value, batch.observations, chosen, 2.0, 100.0)
     np.testing.assert_allclose(info["actor_loss"], expected, rtol=2e-5)
 
 
 def test_iql_online_update_is_the_offline_update():
     lrn, batch = _learner("iql"), _batch(3)
-    new, info = iql.online_update(lrn, batch, jax.random.PRNGKey(0), jnp.zeros(()), HP, NETS, CFG, jnp.int32(0))
-    off, off_info = iql.update(iql.offline_view(lrn), batch, NETS, iql.offline_hparams(HP))
+    new, info = iql.online_update(lrn, batch, jax.random.PRNGKey(0), jnp.zeros(()), hp_for("iql"), NETS, CFG,
+                                  jnp.int32(0))
+    off, off_info = iql.update(iql.offline_view(lrn), batch, NETS, iql.offline_hparams(hp_for("iql")))
     for a, b in zip(jax.tree.leaves(iql.offline_view(new)), jax.tree.leaves(off)):
         np.testing.assert_array_equal(a, b)
     # expectile 0.8 enters the value loss: recompute it by hand on the batch
@@ -160,7 +168,7 @@ def test_baseline_improves_a_weak_bundle_online(name, kind):
     m_def = methods.METHODS[name]
     cfg = dataclasses.replace(POINT, algo=m_def.algo, sampling=m_def.defaults["sampling"], regularizer=False)
     ft = make_finetune(cfg)
-    hp = HParams.create(lr_actor=1e-3, lr_critic=1e-3)
+    hp = ft.hparams.create(lr_actor=1e-3, lr_critic=1e-3)
     start = ft.init(hp, jax.random.PRNGKey(0), bundle(kind), poor_data())
     returns0 = jax.jit(ft.evaluate)(start.learner, jax.random.PRNGKey(1)).returns
     score0 = envs.normalized_score("point", float(jnp.mean(returns0)))
@@ -177,7 +185,7 @@ def test_td3_scratch_learns_point():
 
     cfg = dataclasses.replace(POINT, algo="td3", sampling="online", regularizer=False)
     ft, single = finetune_fn(cfg)
-    _, m = single(HParams.create(alpha0=0.0, lr_actor=1e-3, lr_critic=1e-3), jax.random.PRNGKey(0), None, None)
+    _, m = single(ft.hparams.create(alpha0=0.0, lr_actor=1e-3, lr_critic=1e-3), jax.random.PRNGKey(0), None, None)
     score = np.asarray(envs.normalized_score("point", m["eval_return"]))
     assert score[-1] >= 80.0, score
 
@@ -297,7 +305,7 @@ def test_calql_finetunes_point_and_keeps_buffer_returns_exact():
     cfg = dataclasses.replace(POINT, algo="calql", sampling="symmetric", regularizer=False, cql_n_actions=4)
     ft = make_finetune(cfg)
     b = bundle("calql", steps=100)  # CQL extracts a good policy even from the poor data: stop it early
-    hp = HParams.create(lr_actor=1e-3, lr_critic=1e-3, alpha_sac_init=1.0, target_entropy_scale=-1.0, cql_alpha=1.0)
+    hp = ft.hparams.create(lr_actor=1e-3, lr_critic=1e-3, alpha_sac_init=1.0, target_entropy_scale=-1.0, cql_alpha=1.0)
     start = ft.init(hp, jax.random.PRNGKey(0), b, data)
     returns0 = jax.jit(ft.evaluate)(start.learner, jax.random.PRNGKey(1)).returns
     score0 = envs.normalized_score("point", float(jnp.mean(returns0)))
@@ -318,7 +326,7 @@ def _off2on(n=3, rows=50):
     cfg = FinetuneConfig(env="point", net=NET, algo="off2on", ensemble_size=n, steps=64, eval_every=64)
     data = _batch(5)
     data = jax.tree.map(lambda x: jnp.concatenate([x] * (rows // B + 1))[:rows], data)
-    lrn = off2on.init(jax.random.PRNGKey(3), NETS, cfg, HP, OBS, ACT, None, data)
+    lrn = off2on.init(jax.random.PRNGKey(3), NETS, cfg, hp_for("off2on"), OBS, ACT, None, data)
     lrn = lrn.replace(actor=perturb(lrn.actor, jax.random.PRNGKey(4)),
                       critic=perturb(lrn.critic, jax.random.PRNGKey(5)),
                       critic_target=perturb(lrn.critic, jax.random.PRNGKey(6)),
@@ -342,7 +350,7 @@ def test_off2on_mixture_and_density_loss_match_numpy():
 def test_off2on_critic_loss_matches_numpy():
     off2on, cfg, lrn, _ = _off2on()
     batch, key = _batch(9), jax.random.PRNGKey(10)
-    loss, _ = off2on.critic_loss(lrn.critic, lrn, batch, key, HP, NETS)
+    loss, _ = off2on.critic_loss(lrn.critic, lrn, batch, key, hp_for("off2on"), NETS)
     actors = [jax.tree.map(lambda x, i=i: x[i], lrn.actor) for i in range(cfg.ensemble_size)]
     mean, log_std = ref.mixture(actors, batch.next_observations)
     u = mean + np.exp(log_std) * np.asarray(jax.random.normal(key, (B, ACT)), np.float64)
@@ -372,7 +380,8 @@ def test_off2on_balanced_replay_samples_by_priority_and_updates_the_sampled_rows
     assert np.all(np.asarray(rows) < 6)  # rows beyond the buffer's size are never drawn
     small = dataclasses.replace(cfg, batch_size=B)
     batch = off2on.sample(jax.random.PRNGKey(1), lrn, buf, data, small)
-    new, info = off2on.update(lrn, batch, jax.random.PRNGKey(2), jnp.zeros(()), HP, NETS, small, jnp.int32(0))
+    new, info = off2on.update(lrn, batch, jax.random.PRNGKey(2), jnp.zeros(()), hp_for("off2on"), NETS, small,
+                              jnp.int32(0))
     drawn = set(np.asarray(batch[3]).tolist())
     p_all = np.concatenate([np.asarray(new.extra["priority_offline"]), np.asarray(new.extra["priority_online"])])
     old = np.concatenate([np.asarray(prio), np.zeros(cfg.capacity)])
@@ -394,7 +403,7 @@ def test_off2on_finetunes_point_from_a_cql_ensemble():
     b = Pretrained(actor=state.actor, critic=state.critic)
     cfg = dataclasses.replace(POINT, algo="off2on", sampling="union", regularizer=False)
     ft = make_finetune(cfg)
-    hp = HParams.create(lr_actor=1e-3, lr_critic=1e-3, alpha_sac_init=1.0, target_entropy_scale=-1.0)
+    hp = ft.hparams.create(lr_actor=1e-3, lr_critic=1e-3, alpha_sac_init=1.0, target_entropy_scale=-1.0)
     start = ft.init(hp, jax.random.PRNGKey(0), b, poor_data())
     returns0 = jax.jit(ft.evaluate)(start.learner, jax.random.PRNGKey(1)).returns
     score0 = envs.normalized_score("point", float(jnp.mean(returns0)))

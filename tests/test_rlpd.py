@@ -17,14 +17,15 @@ from proto_brax import envs, sweep
 from proto_brax.agents import rlpd
 from proto_brax.agents.learner import init_learner
 from proto_brax.agents.registry import METHODS, agent
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.agents.sac import SACHParams
+from proto_brax.config import FinetuneConfig
 from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train.online import make_finetune
 
 OBS, ACT, B, E = 4, 2, 6, 4
 NET = NetworkConfig(hidden=(8, 8), critic_layer_norm=True, num_qs=E)
 NETS = make_networks(NET, ACT)
-HP = HParams.create(gamma=0.9, alpha_sac_init=0.3)
+HP = SACHParams.create(gamma=0.9, alpha_sac_init=0.3)
 
 
 def _learner(seed=1):
@@ -111,7 +112,7 @@ def test_rlpd_learns_point_from_random_init_with_poor_data(utd):
     cfg = dataclasses.replace(POINT, algo="rlpd", sampling="symmetric", regularizer=False, updates_per_step=utd,
                               net=dataclasses.replace(POINT.net, num_qs=4))
     ft = make_finetune(cfg)
-    hp = HParams.create(lr_actor=1e-3, lr_critic=1e-3, alpha_sac_init=1.0)
+    hp = SACHParams.create(lr_actor=1e-3, lr_critic=1e-3, alpha_sac_init=1.0)
     _, m = jax.jit(ft.finetune)(hp, jax.random.PRNGKey(0), None, poor_data())
     score = np.asarray(envs.normalized_score("point", m["eval_return"]))
     assert np.all(np.isfinite(m["critic_loss"])) and score[-1] >= 80.0, score

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from proto_brax import sweep
+from proto_brax.agents.sac import SACHParams
 from proto_brax.experiment.plan import REPO_ROOT, finetune_config, resolve_checkpoint, resolve_dataset, reward_transform
 from proto_brax.experiment.run import metric_rows
 from proto_brax.experiment.summary import steady_throughput, summarize_runs
@@ -123,7 +124,7 @@ def test_diverged_run_is_marked_while_others_continue():
     from proto_brax.train.grid import make_grid, run_grid
 
     ft, _ = finetune_fn(TINY)
-    grid = make_grid({"lr_critic": [1e-3, 1e9]}, seeds=[0], base=SCRATCH)
+    grid = make_grid({"lr_critic": [1e-3, 1e9]}, seeds=[0], base=SCRATCH, hparams=SACHParams)
     _, m = run_grid(ft, grid)
     rows = [r for c in range(TINY.num_chunks) for r in metric_rows(c, jax_tree_chunk(m, c), grid, "point", 0.0)]
     good = [r for r in rows if r["lr_critic"] == 1e-3]

@@ -11,18 +11,33 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from flax import struct
 from jax import lax
 
 from proto_brax.agents import sac
 from proto_brax.agents.common import apply_grads, polyak
 from proto_brax.agents.insample import weighted_log_likelihood
 from proto_brax.agents.learner import Learner, OnlineAlgorithm
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.config import FinetuneConfig, HParams, positive
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks, sample_tanh_gaussian
 
 
-def critic_loss(critic, learner: Learner, batch: Transition, key: jax.Array, hp: HParams, nets: Networks,
+@struct.dataclass
+class AWACHParams(HParams):
+    """AWAC's own traced hyper-parameters (CORL's defaults)."""
+
+    awac_lambda: jax.Array = 1.0  # temperature λ of the weight exp(A / λ)
+    awr_weight_max: jax.Array = 100.0  # weights are clipped to [0, awr_weight_max]
+
+    @classmethod
+    def check(cls, v: dict[str, np.ndarray]) -> None:
+        super().check(v)
+        positive("awac_lambda", "awr_weight_max", v=v)
+
+
+def critic_loss(critic, learner: Learner, batch: Transition, key: jax.Array, hp: AWACHParams, nets: Networks,
                 cfg: FinetuneConfig):
     """Mean over members and batch of (Q_i(s, a) − y)², y = r + γ (1 − d) min_j Q̄_j(s′, a′), a′ ~ π(·|s′)."""
     mean, log_std = nets.actor.apply(learner.actor, batch.next_observations)
@@ -35,7 +50,7 @@ def critic_loss(critic, learner: Learner, batch: Transition, key: jax.Array, hp:
     return loss, {"critic_loss": loss, "q_mean": jnp.mean(q), "q_max": jnp.max(q), "target_mean": jnp.mean(target)}
 
 
-def advantage_weights(critic, actor, batch: Transition, key: jax.Array, hp: HParams, nets: Networks,
+def advantage_weights(critic, actor, batch: Transition, key: jax.Array, hp: AWACHParams, nets: Networks,
                       cfg: FinetuneConfig) -> jax.Array:
     """min(exp((Q(s, a) − Q(s, a_π)) / λ), w_max) with a_π ~ π(·|s) (one sample, as CORL)."""
     mean, log_std = nets.actor.apply(actor, batch.observations)
@@ -45,7 +60,7 @@ def advantage_weights(critic, actor, batch: Transition, key: jax.Array, hp: HPar
     return jnp.minimum(jnp.exp((q_data - v) / hp.awac_lambda), hp.awr_weight_max)
 
 
-def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams, nets: Networks,
+def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: AWACHParams, nets: Networks,
            cfg: FinetuneConfig, step: jax.Array) -> tuple[Learner, dict]:
     """Critic step, then the weighted-likelihood actor step against the new critic, then the target Polyak."""
     del alpha, step
@@ -61,4 +76,4 @@ def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array
     return learner, {**c_info, **a_info, "actor_updates": jnp.ones(())}
 
 
-ONLINE = OnlineAlgorithm(update=update, act=sac.act, deviation=sac.deviation)
+ONLINE = OnlineAlgorithm(update=update, act=sac.act, deviation=sac.deviation, hparams=AWACHParams)

@@ -17,15 +17,30 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from flax import struct
 from jax import lax
 
 from proto_brax.agents import awac, sac
 from proto_brax.agents.common import actor_critic_step
 from proto_brax.agents.insample import OfflineHParams, OfflineState
 from proto_brax.agents.learner import Learner, OnlineAlgorithm
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.config import FinetuneConfig
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks, sample_tanh_gaussian
+
+
+@struct.dataclass
+class CQLHParams(sac.SACHParams):
+    """CQL's and Cal-QL's own traced hyper-parameter."""
+
+    cql_alpha: jax.Array = 5.0  # conservative weight α_cql (CQL's MuJoCo min_q_weight)
+
+    @classmethod
+    def check(cls, v: dict[str, np.ndarray]) -> None:
+        super().check(v)
+        if np.any(v["cql_alpha"] < 0):
+            raise ValueError(f"cql_alpha must be >= 0; got {v['cql_alpha']}.")
 
 
 def conservative_penalty(critic, actor, batch: Transition, key: jax.Array, nets: Networks, n_actions: int,
@@ -60,7 +75,7 @@ def conservative_penalty(critic, actor, batch: Transition, key: jax.Array, nets:
 
 
 def make_update(calibrated: bool):
-    def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
+    def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: CQLHParams,
                nets: Networks, cfg: FinetuneConfig, step: jax.Array) -> tuple[Learner, dict]:
         """Conservative critic step, then SAC's actor and temperature steps, then the target Polyak."""
         del alpha, step
@@ -86,8 +101,10 @@ def make_update(calibrated: bool):
 update_cql = make_update(calibrated=False)
 update_calql = make_update(calibrated=True)
 
-ONLINE_CQL = OnlineAlgorithm(update=update_cql, act=sac.act, deviation=sac.deviation, temperature=True)
+ONLINE_CQL = OnlineAlgorithm(update=update_cql, act=sac.act, deviation=sac.deviation, temperature=True,
+                             hparams=CQLHParams)
 ONLINE_CALQL = OnlineAlgorithm(update=update_calql, act=sac.act, deviation=sac.deviation, temperature=True,
+                               hparams=CQLHParams,
                                mc_returns=True)
 
 
@@ -97,7 +114,7 @@ def offline_update(state: OfflineState, batch: Transition, key: jax.Array, nets:
     learner = Learner(actor=state.actor, critic=state.critic, critic_target=state.critic_target, pibar=state.actor,
                       pi0=state.actor, actor_opt=state.actor_opt, critic_opt=state.critic_opt,
                       log_alpha_sac=state.log_alpha_sac, alpha_opt=state.alpha_opt)
-    fhp = HParams.create().replace(gamma=hp.gamma, target_tau=hp.target_tau, cql_alpha=hp.cql_alpha,
+    fhp = CQLHParams.create().replace(gamma=hp.gamma, target_tau=hp.target_tau, cql_alpha=hp.cql_alpha,
                                    target_entropy_scale=hp.target_entropy_scale)
     update = update_calql if calibrated else update_cql
     learner, info = update(learner, batch, key, jnp.zeros(()), fhp, nets, cfg, jnp.zeros((), jnp.int32))

@@ -7,13 +7,31 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from flax import struct
 
 from proto_brax.agents import sac
 from proto_brax.agents.insample import OfflineHParams, OfflineState, insample_update
 from proto_brax.agents.learner import Learner, OnlineAlgorithm
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.config import FinetuneConfig, HParams, positive
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks
+
+
+@struct.dataclass
+class IQLHParams(HParams):
+    """IQL's own traced hyper-parameters (Kostrikov et al. 2022, MuJoCo values)."""
+
+    expectile: jax.Array = 0.7  # expectile τ of the value regression
+    awr_temperature: jax.Array = 3.0  # inverse temperature β of the extraction weight exp(β (Q − V))
+    awr_weight_max: jax.Array = 100.0  # extraction weights are clipped to [0, awr_weight_max]
+
+    @classmethod
+    def check(cls, v: dict[str, np.ndarray]) -> None:
+        super().check(v)
+        if np.any((v["expectile"] <= 0) | (v["expectile"] >= 1)):
+            raise ValueError(f"expectile must lie in (0, 1); got {v['expectile']}.")
+        positive("awr_weight_max", v=v)
 
 
 def value_loss(q: jax.Array, v: jax.Array, hp: OfflineHParams) -> jax.Array:
@@ -43,7 +61,7 @@ def offline_view(learner: Learner) -> OfflineState:
                         value_opt=learner.value_opt)
 
 
-def offline_hparams(hp: HParams) -> OfflineHParams:
+def offline_hparams(hp: IQLHParams) -> OfflineHParams:
     """IQL's traced values taken from the finetuning ``HParams`` (learning rates live in the optimizer states)."""
     return OfflineHParams(expectile=hp.expectile, temperature=hp.awr_temperature, weight_max=hp.awr_weight_max,
                           gamma=hp.gamma, target_tau=hp.target_tau)
@@ -55,7 +73,7 @@ def merge(learner: Learner, state: OfflineState) -> Learner:
                            value_opt=state.value_opt)
 
 
-def online_update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
+def online_update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: IQLHParams,
                   nets: Networks, cfg: FinetuneConfig, step: jax.Array) -> tuple[Learner, dict]:
     """One IQL step (expectile V, AWR π, Q → r + γV′, target Polyak) on a replay batch; α (PROTO's) is unused."""
     del key, alpha, cfg, step
@@ -63,5 +81,5 @@ def online_update(learner: Learner, batch: Transition, key: jax.Array, alpha: ja
     return merge(learner, state), {**info, "actor_updates": jnp.ones(())}
 
 
-ONLINE = OnlineAlgorithm(update=online_update, act=sac.act, deviation=sac.deviation, value=True,
+ONLINE = OnlineAlgorithm(update=online_update, act=sac.act, deviation=sac.deviation, value=True, hparams=IQLHParams,
                          policies=("tanh_gaussian", "gaussian"))

@@ -74,6 +74,9 @@ class OnlineAlgorithm:
     # ``configure(cfg) -> OnlineAlgorithm``: the agent specialized to a static configuration (TD3: its exploration
     # noise clip), called once by ``make_finetune``.
     configure: Callable | None = None
+    # Its traced hyper-parameters: config.HParams, or the subclass its module defines with its own fields (the
+    # names a sweep's --hp and --grid accept for it).
+    hparams: type[HParams] = HParams
 
 
 def init_learner(

@@ -17,17 +17,26 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from flax import struct
 from jax import lax
 
+from proto_brax.agents import sac
 from proto_brax.agents.common import actor_critic_step, adam, apply_grads
 from proto_brax.agents.learner import Learner, OnlineAlgorithm
 from proto_brax.agents.proto import kl_penalty
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.config import FinetuneConfig
 from proto_brax.data.dataset import Transition
 from proto_brax.data.replay import ReplayBuffer, replay_gather
 from proto_brax.networks import LOG_STD_MAX, LOG_STD_MIN, Networks, sample_tanh_gaussian
 
 PRIORITY_MIN, PRIORITY_MAX = 1e-3, 1e3
+
+
+@struct.dataclass
+class Off2OnHParams(sac.SACHParams):
+    """Off2On's own traced hyper-parameter."""
+
+    off2on_temperature: jax.Array = 5.0  # replay priority ∝ w^(1/T) (reference code T = 5)
 
 
 def mixture(nets: Networks, actors, obs: jax.Array):
@@ -59,7 +68,7 @@ def priorities(params, nets: Networks, rl: Transition, off: Transition, temperat
     return jnp.clip(w / (norm + 1e-10), PRIORITY_MIN, PRIORITY_MAX)
 
 
-def critic_loss(critics, learner: Learner, batch: Transition, key: jax.Array, hp: HParams, nets: Networks):
+def critic_loss(critics, learner: Learner, batch: Transition, key: jax.Array, hp: Off2OnHParams, nets: Networks):
     """Σ_i mean_B Σ_j (Q_ij(s, a) − y_i)², y_i = r + γ (1 − d)[min_j Q̄_ij(s′, a′) − α_sac log π(a′|s′)]."""
     mean, log_std = mixture(nets, learner.actor, batch.next_observations)
     a_next, _, logp_next = sample_tanh_gaussian(key, mean, log_std)
@@ -98,7 +107,7 @@ def sample(key: jax.Array, learner: Learner, buffer: ReplayBuffer, dataset: Tran
     return replay_gather(buffer, dataset, rows), off, on, rows
 
 
-def update(learner: Learner, batch, key: jax.Array, alpha: jax.Array, hp: HParams, nets: Networks,
+def update(learner: Learner, batch, key: jax.Array, alpha: jax.Array, hp: Off2OnHParams, nets: Networks,
            cfg: FinetuneConfig, step: jax.Array) -> tuple[Learner, dict]:
     """Priorities of the sampled rows, density-ratio step, critic-ensemble step, actor step, temperature, targets."""
     del alpha, step
@@ -126,7 +135,7 @@ def update(learner: Learner, batch, key: jax.Array, alpha: jax.Array, hp: HParam
                      "offline_share": jnp.mean(rows < n_data), "actor_updates": jnp.ones(())}
 
 
-def init(key: jax.Array, nets: Networks, cfg: FinetuneConfig, hp: HParams, obs_size: int, act_size: int,
+def init(key: jax.Array, nets: Networks, cfg: FinetuneConfig, hp: Off2OnHParams, obs_size: int, act_size: int,
          pretrained, dataset: Transition | None) -> Learner:
     """N actors and critic pairs from a CQL bundle with N seeds (or random), a fresh density net and temperature."""
     if dataset is None:
@@ -152,7 +161,7 @@ def init(key: jax.Array, nets: Networks, cfg: FinetuneConfig, hp: HParams, obs_s
                    log_alpha_sac=log_alpha, alpha_opt=adam(hp.lr_alpha).init(log_alpha), extra=extra)
 
 
-def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: HParams | None,
+def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: Off2OnHParams | None,
         deterministic: bool) -> jax.Array:
     mean, log_std = mixture(nets, learner.actor, obs)
     return jnp.tanh(mean) if deterministic else sample_tanh_gaussian(key, mean, log_std)[0]
@@ -166,4 +175,5 @@ def deviation(nets: Networks, actor, other, obs: jax.Array, key: jax.Array) -> j
     return jnp.mean(kl_penalty(u, mean, log_std, mean_o, log_std_o))
 
 
-ONLINE = OnlineAlgorithm(update=update, act=act, deviation=deviation, temperature=True, init=init, sample=sample)
+ONLINE = OnlineAlgorithm(update=update, act=act, deviation=deviation, temperature=True, init=init, sample=sample,
+                         hparams=Off2OnHParams)

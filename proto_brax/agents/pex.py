@@ -12,12 +12,20 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from flax import struct
 
 from proto_brax.agents import iql, sac
 from proto_brax.agents.learner import Learner, OnlineAlgorithm
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.config import FinetuneConfig
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks, sample_tanh_gaussian
+
+
+@struct.dataclass
+class PEXHParams(iql.IQLHParams):
+    """PEX's traced hyper-parameters: IQL's and the policy choice's inverse temperature."""
+
+    pex_inv_temperature: jax.Array = 10.0  # P(choose πᵢ) ∝ exp(inv_temperature · Q(s, aᵢ)) (PEX code default)
 
 
 def candidates(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, deterministic: bool):
@@ -34,7 +42,7 @@ def selection_logits(q: jax.Array, inv_temperature: jax.Array) -> jax.Array:
     return inv_temperature * q
 
 
-def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: HParams | None,
+def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: PEXHParams | None,
         deterministic: bool) -> jax.Array:
     k_pi, k_choice = jax.random.split(key)
     a0, a1, q = candidates(nets, learner, obs, k_pi, deterministic)
@@ -45,7 +53,7 @@ def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: HP
     return jnp.where(choice[..., None] == 1, a1, a0)
 
 
-def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams, nets: Networks,
+def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: PEXHParams, nets: Networks,
            cfg: FinetuneConfig, step: jax.Array) -> tuple[Learner, dict]:
     """IQL's V and Q steps on the batch; π imitates the composite policy's actions with weight exp(β (Q − V))."""
     del alpha, cfg, step
@@ -54,4 +62,5 @@ def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array
     return iql.merge(learner, state), {**info, "actor_updates": jnp.ones(())}
 
 
-ONLINE = OnlineAlgorithm(update=update, act=act, deviation=sac.deviation, value=True, fresh_actor=True)
+ONLINE = OnlineAlgorithm(update=update, act=act, deviation=sac.deviation, value=True, fresh_actor=True,
+                         hparams=PEXHParams)

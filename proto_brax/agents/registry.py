@@ -6,7 +6,7 @@ its losses, its ``update`` and an ``OnlineAlgorithm`` record (``agents.learner``
 τ = 0, direct: α₀ = 0, from scratch: a random π₀) and the PROTO paper's baselines are all methods; every method runs
 in the same jitted, vmapped loop and is logged and reported the same way. A method's ``defaults`` replace the sweep's
 defaults (after a ``--preset``, before the command line), so ``--algo NAME --help`` shows them. Hyper-parameters come
-from each paper or its reference code (``proto_brax.config.HParams`` cites them).
+from each paper or its reference code (``proto_brax.config.HParams`` and each agent's subclass cite them).
 
 Adding a method is one agent module plus its lines here (``AGENTS`` and ``METHODS``). This module imports no JAX: the
 command lines build their arguments from it before anything heavy is imported; ``agent(name)`` imports the module.

@@ -26,7 +26,7 @@ from jax import lax
 from proto_brax.agents import sac
 from proto_brax.agents.common import apply_grads, polyak, temperature_step
 from proto_brax.agents.learner import Learner, OnlineAlgorithm
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.config import FinetuneConfig
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks
 
@@ -38,7 +38,7 @@ def target_subset(key: jax.Array, num_qs: int) -> jax.Array:
     return jax.random.choice(key, num_qs, (min(NUM_MIN_QS, num_qs),), replace=False)
 
 
-def critic_loss(critic, learner: Learner, batch: Transition, key: jax.Array, hp: HParams, nets: Networks):
+def critic_loss(critic, learner: Learner, batch: Transition, key: jax.Array, hp: sac.SACHParams, nets: Networks):
     """mean_{i, batch} (Q_i(s, a) − y)², y = r + γ (1 − d)[min_{j∈M} Q̄_j(s′, a′) − α_sac log π(a′|s′)]."""
     k_act, k_subset = jax.random.split(key)
     mean, log_std = nets.actor.apply(learner.actor, batch.next_observations)
@@ -63,7 +63,7 @@ def actor_loss(actor, critic, learner: Learner, obs: jax.Array, key: jax.Array, 
     return loss, {"actor_loss": loss, "entropy": -jnp.mean(logp), "log_prob": logp}
 
 
-def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams, nets: Networks,
+def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: sac.SACHParams, nets: Networks,
            cfg: FinetuneConfig, step: jax.Array) -> tuple[Learner, dict]:
     """One critic step and the target's Polyak step; on the last of an env step's ``updates_per_step`` updates also
     the actor and the temperature."""
@@ -93,4 +93,5 @@ def update(learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array
     return learner, {**c_info, **a_info, "alpha_sac": jnp.exp(learner.log_alpha_sac)}
 
 
-ONLINE = OnlineAlgorithm(update=update, act=sac.act, deviation=sac.deviation, temperature=True)
+ONLINE = OnlineAlgorithm(update=update, act=sac.act, deviation=sac.deviation, temperature=True,
+                         hparams=sac.SACHParams)

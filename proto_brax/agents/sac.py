@@ -8,14 +8,30 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from flax import struct
 from jax import lax
 
 from proto_brax.agents.common import actor_critic_step, polyak
 from proto_brax.agents.learner import Learner, OnlineAlgorithm
 from proto_brax.agents.proto import kl_penalty
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.config import FinetuneConfig, HParams, positive
 from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks
+
+
+@struct.dataclass
+class SACHParams(HParams):
+    """SAC's entropy temperature (PROTO's reference code when finetuning; SAC from scratch: ``SAC_SCRATCH_HP``)."""
+
+    lr_alpha: jax.Array = 3e-4  # learning rate of SAC's entropy temperature
+    alpha_sac_init: jax.Array = 0.01  # initial SAC entropy temperature (reference code: 0.01 when finetuning)
+    target_entropy_scale: jax.Array = -0.5  # target entropy = scale × |A| (reference code: −|A|/2)
+
+    @classmethod
+    def check(cls, v: dict[str, np.ndarray]) -> None:
+        super().check(v)
+        positive("lr_alpha", "alpha_sac_init", v=v)
 
 
 def reduce_q(q: jax.Array, clipped_double_q: bool) -> jax.Array:
@@ -38,7 +54,7 @@ def actor_q(q: jax.Array, cfg: FinetuneConfig) -> jax.Array:
 
 
 def critic_loss(
-    critic, learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
+    critic, learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: SACHParams,
     nets: Networks, cfg: FinetuneConfig, pibar_next: tuple[jax.Array, jax.Array] | None = None,
 ):
     """Critic loss with the PROTO backup (Eq. 3).
@@ -84,7 +100,7 @@ def actor_loss(
 
 
 def update(
-    learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
+    learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: SACHParams,
     nets: Networks, cfg: FinetuneConfig, step: jax.Array,
 ) -> tuple[Learner, dict]:
     """One PROTO-SAC gradient step: critic, actor (against the new critic), temperature, target Q̄ and π̄ Polyak."""
@@ -107,7 +123,7 @@ def update(
                      "actor_updates": jnp.ones(())}
 
 
-def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: HParams | None,
+def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: SACHParams | None,
         deterministic: bool) -> jax.Array:
     """a ~ π(·|s) (clipped to the action box for the env), or the mean action tanh(mean) for evaluation."""
     mean, log_std = nets.actor.apply(learner.actor, obs)
@@ -124,5 +140,5 @@ def deviation(nets: Networks, actor, other, obs: jax.Array, key: jax.Array) -> j
     return jnp.mean(kl_penalty(u, mean, log_std, mean_o, log_std_o))
 
 
-ONLINE = OnlineAlgorithm(update=update, act=act, deviation=deviation, temperature=True,
+ONLINE = OnlineAlgorithm(update=update, act=act, deviation=deviation, temperature=True, hparams=SACHParams,
                          policies=("tanh_gaussian", "gaussian"))

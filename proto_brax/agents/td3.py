@@ -14,6 +14,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
+from flax import struct
 from jax import lax
 
 from proto_brax.agents.common import apply_grads, polyak
@@ -25,8 +26,18 @@ from proto_brax.data.dataset import Transition
 from proto_brax.networks import Networks
 
 
+@struct.dataclass
+class TD3HParams(HParams):
+    """PROTO-TD3's own traced hyper-parameters (paper appendix; TD3's smoothing and exploration noise)."""
+
+    beta: jax.Array = 4.0  # λ = β / mean|Q| (paper: 4)
+    policy_noise: jax.Array = 0.2  # target-policy smoothing noise
+    noise_clip: jax.Array = 0.5
+    expl_noise: jax.Array = 0.1  # exploration noise σ
+
+
 def critic_loss(
-    critic, learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
+    critic, learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: TD3HParams,
     nets: Networks, cfg: FinetuneConfig,
 ):
     """y = r + γ (1 − d) [Q̄(s′, a′) − α ‖π(s′) − π̄(s′)‖²], a′ = clip(π_targ(s′) + clip(ε, ±c), ±1), ε ~ N(0, σ²).
@@ -54,7 +65,7 @@ def critic_loss(
 
 
 def actor_loss(
-    actor, critic, learner: Learner, obs: jax.Array, alpha: jax.Array, hp: HParams, nets: Networks,
+    actor, critic, learner: Learner, obs: jax.Array, alpha: jax.Array, hp: TD3HParams, nets: Networks,
     cfg: FinetuneConfig,
 ):
     """E[−λ Q_k(s, π(s)) + α ‖π(s) − π̄(s)‖²], λ = β / mean|Q_k(s, π(s))| (stop-gradient); k = 1 (TD3+BC) or 2
@@ -71,7 +82,7 @@ def actor_loss(
 
 
 def update(
-    learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: HParams,
+    learner: Learner, batch: Transition, key: jax.Array, alpha: jax.Array, hp: TD3HParams,
     nets: Networks, cfg: FinetuneConfig, step: jax.Array,
 ) -> tuple[Learner, dict]:
     """Critic every call; actor, target actor, target critic and π̄ every ``policy_delay`` calls.
@@ -107,7 +118,7 @@ def update(
     return learner, {**c_info, **a_info}
 
 
-def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: HParams | None,
+def act(nets: Networks, learner: Learner, obs: jax.Array, key: jax.Array, hp: TD3HParams | None,
         deterministic: bool, noise_clip: float | None = None) -> jax.Array:
     """π(s) plus Gaussian exploration noise N(0, σ²) (clipped to ±c with ``Fidelity.td3_expl_noise_clip``, the
     official code's 0.5), the sum clipped to the action box; π(s) alone for evaluation."""
@@ -134,4 +145,5 @@ def configure(cfg: FinetuneConfig) -> OnlineAlgorithm:
 
 
 ONLINE = OnlineAlgorithm(update=update, act=act, deviation=deviation, target_actor=True, deterministic=True,
+                         hparams=TD3HParams,
                          policies=("tanh_gaussian", "gaussian"), configure=configure)

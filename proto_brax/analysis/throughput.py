@@ -23,7 +23,7 @@ from proto_brax import envs
 from proto_brax.agents.learner import init_learner
 from proto_brax.agents.registry import agent
 from proto_brax.analysis.timing import Case, aot, flops_of, log, run_interleaved, synthetic_transitions, versions
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.config import FinetuneConfig
 from proto_brax.data.dataset import Transition
 from proto_brax.data.replay import replay_init, replay_insert, replay_sample
 from proto_brax.networks import NetworkConfig, make_networks
@@ -127,7 +127,7 @@ def update_setup(cfg: FinetuneConfig, sizes: Sizes, key: jax.Array):
     env = envs.make_env(cfg.env, cfg.backend)
     obs, act = env.observation_size, env.action_size
     nets = make_networks(cfg.net, act, deterministic=agent(cfg.algo).deterministic)
-    hp = HParams.create()
+    hp = agent(cfg.algo).hparams.create()
     k_l, k_d, k_b = jax.random.split(key, 3)
     learner = init_learner(k_l, nets, agent(cfg.algo), hp, obs, act, None)
     dataset = synthetic_transitions(k_d, sizes.dataset_rows, obs, act)
@@ -175,7 +175,7 @@ def online_cfg(sizes: Sizes, chunk_steps: int) -> FinetuneConfig:
 def single_run_case(cfg: FinetuneConfig, dataset: Transition) -> Case:
     """One run's compiled chunk (jit, one device) as a timed ``Case`` of ``eval_every`` updates per call."""
     ft = make_finetune(cfg)
-    hp = HParams.create()
+    hp = ft.hparams.create()
     state = jax.jit(ft.init)(hp, jax.random.PRNGKey(3), None, dataset)
     start0 = jnp.asarray(0, jnp.int32)
     log(f"compiling single-run chunk ({cfg.eval_every} steps)")
@@ -195,7 +195,7 @@ def grid_case(name: str, cfg: FinetuneConfig, dataset: Transition, grid_size: in
     real runs' updates per call."""
     ft = make_finetune(cfg)
     mesh = grid_mesh(devices)
-    grid = make_grid({}, seeds=list(range(grid_size)))
+    grid = make_grid({}, seeds=list(range(grid_size)), hparams=ft.hparams)
     size = padded_size(grid.size, mesh)
     program = compile_grid(ft, mesh)
     hp = shard(pad_leading(grid.hparams, size), mesh)

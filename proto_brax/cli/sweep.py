@@ -16,8 +16,8 @@ import dataclasses
 import os
 import sys
 
-from proto_brax.agents.registry import METHODS, describe
-from proto_brax.experiment.args import PRESETS, SweepArgs, validate_args
+from proto_brax.agents.registry import METHODS, agent, describe
+from proto_brax.experiment.args import GRID_AXES, PRESETS, SweepArgs, validate_args
 from proto_brax.experiment.run import run_sweep
 from proto_brax.startup import exit_on_input_error, refuse_repeated
 
@@ -29,6 +29,16 @@ def _flag_value(argv: list[str], flag: str) -> str | None:
         if a.startswith(flag + "="):
             return a.split("=", 1)[1]
     return None
+
+
+def hparams_help(method) -> str:
+    """The method's traced hyper-parameters (its agent's HParams fields) with the values its runs start from."""
+    hparams = agent(method.algo).hparams
+    values = {**{f.name: f.default for f in dataclasses.fields(hparams)}, **method.hp}
+    own_flags = (*GRID_AXES, "anneal_horizon")  # set by --tau, --eta, --alpha0, --anneal-horizon
+    listed = ", ".join(f"{k} {v:g}" for k, v in values.items() if k not in own_flags)
+    return (f"Its traced hyper-parameters besides --tau/--eta/--alpha0/--anneal-horizon ({hparams.__name__}; set "
+            f"with --hp NAME VALUE, grid with --grid NAME=V1,V2): {listed}.")
 
 
 def parse_args(argv: list[str] | None = None) -> SweepArgs:
@@ -52,8 +62,9 @@ def parse_args(argv: list[str] | None = None) -> SweepArgs:
             raise SystemExit(f"--algo needs one of: {describe()}")
         method = METHODS[algo]
         defaults = dataclasses.replace(defaults, algo=algo, **method.defaults)
-        description += f" --algo {algo}: {method.summary}." + (
-            f" Its hyper-parameters under --hp: {method.hp}." if method.hp else "")
+        description += f" --algo {algo}: {method.summary}."
+        if "-h" in argv or "--help" in argv:  # (the agent's module imports JAX: only when help is shown)
+            description += f" {hparams_help(method)}"
     presets = "; ".join(f"{k}: {v.summary}" for k, v in PRESETS.items())
     description += f" Presets (--preset NAME, before other flags): {presets}."
     if "-h" in argv or "--help" in argv:  # the registry imports Brax: only when help is shown

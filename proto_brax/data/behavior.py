@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from proto_brax import __version__, checkpoints, envs
-from proto_brax.config import FinetuneConfig, HParams
+from proto_brax.config import FinetuneConfig
 from proto_brax.networks import NetworkConfig
 from proto_brax.train.online import make_finetune
 
@@ -58,7 +58,7 @@ def snapshot_dir(out: Path, env: str, step: int) -> Path:
 def train_behavior(args: Args) -> list[dict]:
     cfg = behavior_config(args)
     ft = make_finetune(cfg)
-    hp = HParams.create(**SAC_SCRATCH)
+    hp = ft.hparams.create(**SAC_SCRATCH)
     state = jax.jit(ft.init, static_argnums=())(hp, jax.random.PRNGKey(args.seed), None, None)
     resume = Path(args.resume_dir) / args.env
     start_chunk = 0

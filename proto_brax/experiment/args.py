@@ -91,7 +91,8 @@ class SweepArgs:
     """Offline hyper-parameters of --pretrain, e.g. --pretrain-hp alpha 0.5 (AntMaze's EQL temperature; see
     proto_brax.agents.insample.OfflineHParams)."""
     hp: dict[str, float] = dataclasses.field(default_factory=dict)
-    """Other traced hyper-parameters, e.g. --hp lr_actor 1e-4 gamma 0.995 (see proto_brax.config.HParams)."""
+    """Other traced hyper-parameters, e.g. --hp lr_actor 1e-4 gamma 0.995: the fields of the method's HParams
+    (proto_brax.config.HParams and its agent's own; --algo NAME --help lists them with their defaults)."""
     reward_scale: float | None = None
     """Training rewards are reward_scale · r + reward_shift, offline and online (returns are reported raw). Default:
     the bundle's (its critic's units); without a bundle the env's rule: 1000 / (max − min episode return of the

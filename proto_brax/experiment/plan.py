@@ -209,7 +209,10 @@ def plan_sweep(args: SweepArgs) -> Plan:
     method = get_method(args.algo)
     axes = grid_axes(args)
     base = {"anneal_horizon": float(args.anneal_horizon or args.steps), **method.hp, **args.hp}
-    grid = make_grid(axes, list(args.seeds), base=base)  # validated before anything compiles
+    from proto_brax.agents.registry import agent
+
+    # validated before anything compiles; the leaves are the agent's own HParams fields
+    grid = make_grid(axes, list(args.seeds), base=base, hparams=agent(method.algo).hparams)
     sweep_cfg = sweep_record(args)
     import jax
 

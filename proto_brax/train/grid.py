@@ -35,8 +35,10 @@ class Grid:
         return len(self.points)
 
 
-def make_grid(axes: dict[str, Sequence[float]], seeds: Sequence[int], base: dict[str, float] | None = None) -> Grid:
-    """Cartesian product of ``axes`` (hyper-parameter name -> values) × ``seeds``; seeds vary fastest.
+def make_grid(axes: dict[str, Sequence[float]], seeds: Sequence[int], base: dict[str, float] | None = None,
+              hparams: type[HParams] = HParams) -> Grid:
+    """Cartesian product of ``axes`` (hyper-parameter name -> values) × ``seeds``; seeds vary fastest. The leaves
+    are the fields of ``hparams``: the agent's class (``Finetune.hparams``; ``HParams`` for SAC and RLPD).
 
     Validated on the host before anything compiles: empty axes, duplicate values and out-of-range values raise.
     """
@@ -54,15 +56,16 @@ def make_grid(axes: dict[str, Sequence[float]], seeds: Sequence[int], base: dict
     points = []
     for combo in itertools.product(*(axes[n] for n in names), seeds):
         points.append({**base, **dict(zip(names, map(float, combo[:-1]))), "seed": int(combo[-1])})
-    fields = [f.name for f in dataclasses.fields(HParams)]
+    fields = hparams.names()
     unknown = (set(names) | set(base)) - set(fields)
     if unknown:
-        raise ValueError(f"Unknown hyper-parameter(s) {sorted(unknown)}: valid names are {sorted(fields)}.")
-    defaults = HParams.create()
+        raise ValueError(f"Unknown hyper-parameter(s) {sorted(unknown)} of {hparams.__name__}: valid names are "
+                         f"{sorted(fields)}.")
+    defaults = hparams.create()
     leaves = {
         f: np.asarray([p.get(f, float(getattr(defaults, f))) for p in points], np.float32) for f in fields
     }
-    hp = HParams(**leaves)
+    hp = hparams(**leaves)
     validate_hparams(hp)
     return Grid(hparams=hp, seeds=np.asarray([p["seed"] for p in points]), points=tuple(points))
 

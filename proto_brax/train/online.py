@@ -55,6 +55,7 @@ class Finetune:
     chunk: Callable
     finetune: Callable
     evaluate: Callable
+    hparams: type[HParams]  # its agent's traced hyper-parameters: grids are built with make_grid(..., hparams=…)
 
 
 def make_finetune(cfg: FinetuneConfig) -> Finetune:
@@ -74,7 +75,13 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
         raise ValueError(f"algo {cfg.algo!r} keeps Monte-Carlo returns in the buffer: buffer_capacity must be >= "
                          f"episode length × num_envs = {horizon * cfg.num_envs}; got {cfg.capacity}.")
 
+    def expect(hp) -> None:  # (at trace time: a grid built for another agent fails here, not deep in its update)
+        if not isinstance(hp, algo.hparams):
+            raise TypeError(f"algo {cfg.algo!r} takes {algo.hparams.__name__}, got {type(hp).__name__}: build the "
+                            f"grid with make_grid(..., hparams=finetune.hparams) or {algo.hparams.__name__}.create().")
+
     def init(hp: HParams, key: jax.Array, pretrained: Pretrained | None, dataset: OfflineDataset | None):
+        expect(hp)
         if algo.mc_returns and dataset is not None and dataset.mc_returns is None:
             raise ValueError(f"algo {cfg.algo!r} needs Monte-Carlo returns in the dataset: pass "
                              "proto_brax.data.dataset.with_returns_to_go(dataset, gamma).")
@@ -159,13 +166,14 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
         """Returns, lengths and success steps of ``eval_episodes`` deterministic episodes run side by side (each to
         termination or horizon; on a goal task the length is the steps to the goal). With ``Fidelity.eval_mode =
         'behaviour'`` the episodes act as in training (the official code's AntMaze evaluation); TD3's exploration
-        noise then comes from ``hp`` (default HParams when None)."""
+        noise then comes from ``hp`` (the agent's defaults when None)."""
         deterministic = cfg.fidelity.eval_mode == "deterministic"
-        hp = HParams.create() if hp is None and not deterministic else hp
+        hp = algo.hparams.create() if hp is None and not deterministic else hp
         policy = lambda obs, k: algo.act(nets, learner, obs, k, hp, deterministic=deterministic)  # noqa: E731
         return run_episode_stats(env, horizon, policy, key, cfg.eval_episodes)
 
     def chunk(state: TrainState, hp: HParams, dataset, start: jax.Array):
+        expect(hp)
         TRACE_COUNT["chunk"] += 1
         ts = start + jnp.arange(cfg.eval_every)
         state, (stats, updated) = lax.scan(lambda s, t: train_step(s, t, hp, dataset), state, ts)
@@ -202,4 +210,4 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
         starts = jnp.arange(cfg.num_chunks) * cfg.eval_every
         return lax.scan(lambda s, start: chunk(s, hp, dataset, start), state, starts)
 
-    return Finetune(cfg=cfg, init=init, chunk=chunk, finetune=finetune, evaluate=evaluate)
+    return Finetune(cfg=cfg, init=init, chunk=chunk, finetune=finetune, evaluate=evaluate, hparams=algo.hparams)
