@@ -40,7 +40,9 @@ def curve(method: str, seed: int, tau: float = 0.005) -> list[float]:
             "direct": [30.0, 5.0 + seed, 40.0, 70.0 + seed],
             "frozen": [30.0, 31.0, 40.0, 60.0 + seed],
             "ablate-tau": [30.0, 20.0, 50.0, 80.0 + seed + 1000 * tau],
-            "sac-scratch": [1.0, 2.0, 5.0, 10.0 + seed]}[method]
+            "sac-scratch": [1.0, 2.0, 5.0, 10.0 + seed],
+            "rlpd-utd1": [10.0, 20.0, 30.0, 40.0 + seed],
+            "proto-official": [28.0 - seed, 50.0, 80.0 + seed, 80.0 + seed]}[method]
 
 
 def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,), hashes=None,
@@ -434,3 +436,27 @@ def test_rounding_check_tells_overlapping_final_cis_from_separate_ones(tmp_path)
     with pytest.raises(SystemExit, match="grids differ"):
         mod.compare(json.loads((other_grid / "summary.json").read_text()),
                     json.loads((published / "summary.json").read_text()))
+
+
+def test_comparisons_beside_the_papers_pair_datasets_and_say_whether_cis_separate(tmp_path):
+    """RLPD ends 40 below PROTO-SAC on every seed: CIs separate; the official variant ends where PROTO-SAC does: CIs
+    overlap. Unpublished comparisons name the command that runs them."""
+    mod = load_module()
+    root = tmp_path / "locomotion"
+    for method in ("proto-sac", "rlpd-utd1", "proto-official"):
+        d = publish(root, "hopper-medium", method)
+        config = json.loads((d / "config.json").read_text())
+        (d / "config.json").write_text(json.dumps({**config, "finetune": {"updates_per_step": 1}}))
+    publish(root, "walker2d-medium", "rlpd-utd1")  # no proto-sac there: not paired
+    table = mod.collect(mod.Args(results=root, bundles=tmp_path / "none"))
+    rlpd, official = (mod.comparison(table, c) for c in mod.COMPARISONS)
+    text = "\n".join(rlpd)
+    # finals: RLPD 40 + s, PROTO-SAC 80 + s over seeds 0, 1, 2 (population std √(2/3) = 0.8)
+    assert "| hopper-medium | rlpd-utd1 | UTD 1, 1,000 steps | 41.0 ± 0.8 |" in text
+    assert "| 81.0 ± 0.8 |" in text and "walker2d-medium" not in text
+    assert "over 1 dataset(s) (hopper-medium)" in text and "CIs separate (PROTO-SAC higher)" in text
+    assert "CIs overlap" in "\n".join(official)
+    table.pop("hopper-medium")
+    empty = "\n".join(mod.comparison(table, mod.COMPARISONS[0]))
+    assert ("Not published yet: `python benchmarks/locomotion.py run --methods rlpd-utd1 rlpd --datasets hopper-medium "
+            "halfcheetah-medium`") in empty

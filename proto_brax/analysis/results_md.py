@@ -311,6 +311,72 @@ def claim_cost(args: Args, cost: dict | None) -> dict | None:
     return None
 
 
+@dataclasses.dataclass(frozen=True)
+class Comparison:
+    """Methods beside the paper's, each compared with PROTO-SAC on the datasets where both are published."""
+
+    title: str
+    methods: tuple[str, ...]
+    note: str  # what the reader needs to read the numbers
+    datasets: tuple[str, ...] = DATASETS  # where they are planned (the command that runs them names these)
+
+
+COMPARISONS = (
+    Comparison(
+        "RLPD, the strongest modern baseline the paper does not compare against", ("rlpd-utd1", "rlpd"),
+        "RLPD (Ball et al. 2023; `proto_brax/agents/rlpd.py`) is SAC from a random init on 50/50 offline/online "
+        "batches with 10 LayerNorm critics (the min over a random 2 in the backup) and no pretraining. Its paper runs "
+        "20 updates per env step (UTD); `rlpd-utd1` runs one, the UTD a 2-core CPU affords at the published budget.",
+        datasets=("hopper-medium", "halfcheetah-medium")),
+    Comparison(
+        "PROTO-SAC as the official code runs it", ("proto-official", "proto-official-online"),
+        "The official PROTO code's choices ([FIDELITY.md](../FIDELITY.md)): `proto-official` all of them (its policy "
+        "class, its EQL bundle, the carried-over critic state and the online choices), `proto-official-online` the "
+        "online choices only, from our EQL bundle. Where a variant's CIs separate from PROTO-SAC's, FIDELITY.md "
+        "ablates its rows one at a time."),
+)
+
+
+def separation(a, b, name_a: str, name_b: str) -> str:
+    """Whether the IQM 95% CIs of the scores ``a`` and ``b`` separate, and whose IQM is higher."""
+    (am, alo, ahi), (bm, blo, bhi) = ci(a), ci(b)
+    if alo > bhi or blo > ahi:
+        return f"CIs separate ({name_a if am > bm else name_b} higher)"
+    return "CIs overlap"
+
+
+def comparison(table, c: Comparison) -> list[str]:
+    """``c.methods`` against PROTO-SAC on each dataset where both are published (final normalized score: mean ± std,
+    IQM [95% CI]) and over their pooled runs, with whether the CIs separate."""
+    rows, pooled = [], []
+    for m in c.methods:
+        datasets = [d for d, per in sorted(table.items()) if {"proto-sac", m} <= set(per)]
+        for d in datasets:
+            finetune = table[d][m]["config"].get("finetune", {})
+            setting = f"UTD {finetune.get('updates_per_step', '?')}, {table[d][m]['summary'].get('steps', 0):,} steps"
+            cells = [f"{final_mean(table[d][k]['runs'])} | {ci_str([r['final'] for r in table[d][k]['runs']])}"
+                     for k in (m, "proto-sac")]
+            rows.append(f"| {d} | {m} | {setting} | {cells[0]} | {cells[1]} |")
+        if datasets:
+            mine = [r["final"] for d in datasets for r in table[d][m]["runs"]]
+            proto = [r["final"] for d in datasets for r in table[d]["proto-sac"]["runs"]]
+            pooled.append(f"**{m}** against PROTO-SAC over {len(datasets)} dataset(s) ({', '.join(datasets)}), "
+                          f"final IQM {ci_str(mine)} vs {ci_str(proto)}: {separation(mine, proto, m, 'PROTO-SAC')}.")
+    lines = [f"## {c.title}", "", c.note, ""]
+    if not rows:
+        where = "" if c.datasets == DATASETS else f" --datasets {' '.join(c.datasets)}"
+        return lines + [f"Not published yet: `python benchmarks/locomotion.py run --methods {' '.join(c.methods)}"
+                        f"{where}`.", ""]
+    return lines + [" ".join(pooled), "",
+                    "| dataset | method | setting | final mean ± std | final IQM [95% CI] | PROTO-SAC mean ± std | "
+                    "PROTO-SAC IQM [95% CI] |", "|---|---|---|---|---|---|---|", *rows, ""]
+
+
+def final_mean(runs: list[dict]) -> str:
+    finite = [r["final"] for r in runs if math.isfinite(r["final"])]
+    return f"{fmt(np.mean(finite))} ± {fmt(np.std(finite))}" if finite else "–"
+
+
 def ablation_tables(table) -> list[str]:
     """The appendix's ablations: per dataset and value, PROTO-SAC's scores; the default value (1 × τ₀, η = 0.9) is
     the dataset's proto-sac sweep, the others its ablate-tau / ablate-eta sweep (one vmapped program each)."""
@@ -524,6 +590,8 @@ def render(args: Args) -> tuple[str, str]:
         dataset_curves(d, table[d], args.results / d / "curves.png")
         lines += dataset_table(d, table[d], before)
     lines += ablation_tables(table)
+    for c in COMPARISONS:
+        lines += comparison(table, c)
     lines += cost_table(cost)
     return "\n".join(lines).rstrip() + "\n", readme_block(covered + claimed)
 
