@@ -205,6 +205,18 @@ def test_unknown_and_missing_datasets_name_the_fix(tmp_path):
         g.list_snapshots("hopper", tmp_path)
 
 
+def test_gymnasium_v5_datasets_are_registered_with_the_locomotion_kinds(tmp_path):
+    """hopper-v5-medium etc. (issue 34): the Brax kinds on the MJX ports; without a behaviour policy, make names the
+    command that trains one (before any rollout)."""
+    names = set(g.dataset_names())
+    for env in ("hopper-v5", "walker2d-v5", "halfcheetah-v5", "ant-v5"):
+        assert {f"{env}-{kind}" for kind in g.KINDS} <= names
+    assert g.parse_name("halfcheetah-v5-medium-replay") == ("halfcheetah-v5", "medium-replay")
+    assert g.parse_name("hopper-medium") == ("hopper", "medium")  # the Brax names parse as before
+    with pytest.raises(FileNotFoundError, match="proto_brax.data.behavior --env hopper-v5"):
+        datasets.make_dataset("hopper-v5-medium", 1000, num_envs=10, behavior_root=tmp_path, progress=False)
+
+
 def test_sweep_rebuilds_a_missing_or_stale_dataset(tmp_path, monkeypatch, capsys, medium):
     from proto_brax.data.dataset import save_npz
 

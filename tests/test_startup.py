@@ -63,3 +63,23 @@ def test_every_benchmark_script_starts_quietly():
             continue
         quiet = [line for line, name in names if name == "_quiet"]
         assert quiet and quiet[0] < min(loads), f"{path.name}: import _quiet before line {min(loads)}"
+
+
+def test_every_python_m_entry_point_starts_quietly():
+    """Each package module runnable with ``python -m`` (an ``if __name__ == "__main__":`` block, or a package's
+    ``__main__.py``) calls ``quiet_start`` before anything else of its command line."""
+    import ast
+    from pathlib import Path
+
+    package = Path(__file__).resolve().parents[1] / "proto_brax"
+    entries = 0
+    for path in sorted(package.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        mains = [n for n in tree.body if isinstance(n, ast.If) and "__main__" in ast.unparse(n.test)]
+        body = tree.body if path.name == "__main__.py" else [s for n in mains for s in n.body]
+        if not body:
+            continue
+        entries += 1
+        calls = [ast.unparse(s) for s in body if isinstance(s, ast.Expr) and not isinstance(s.value, ast.Constant)]
+        assert calls and calls[0] == "quiet_start()", f"{path}: its __main__ block must call quiet_start() first"
+    assert entries >= 7  # sweep, pretrain, datasets, report, checkpoints, data.behavior, analysis.results_md

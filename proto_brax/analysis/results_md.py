@@ -608,4 +608,7 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
+    from proto_brax.startup import quiet_start
+
+    quiet_start()
     main(tyro.cli(Args))

@@ -98,6 +98,9 @@ if __name__ == "__main__":
 
     import tyro
 
+    from proto_brax.startup import quiet_start
+
+    quiet_start()
     args = tyro.cli(Args)
     if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":  # before JAX starts its backend
         os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()

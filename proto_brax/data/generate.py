@@ -90,8 +90,11 @@ ANTMAZE_KINDS = ("play", "diverse")
 # recipe on the test task.
 ADROIT_ENVS = ("pen", "door", "hammer")
 ADROIT_KINDS = ("expert", "cloned")
+# Gymnasium's MuJoCo v5 locomotion on MJX (proto_brax.envs.gym_v5, the dynamics of Minari's mujoco/* data): the same
+# kinds, from behaviour policies trained on the port (``python -m proto_brax.data.behavior --env hopper-v5``).
+GYM_V5_ENVS = tuple(f"{env}-v5" for env in LOCOMOTION)
 FAMILIES = ((DATASET_ENVS, KINDS), (ANTMAZE_ENVS, ANTMAZE_KINDS), (ADROIT_ENVS, ADROIT_KINDS),
-            (("point",), ("cloned",)))
+            (("point",), ("cloned",)), (GYM_V5_ENVS, KINDS))
 # Each kind's index folds into the generation key; new kinds are appended so existing datasets keep their keys.
 KEY_KINDS = KINDS + ("cloned",)
 
