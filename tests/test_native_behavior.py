@@ -1,0 +1,64 @@
+"""Adroit on native MuJoCo (envs.adroit_native) and the host-loop SAC that trains its experts
+(data.native_behavior): the env is the cross-check's native reference step for step; the trainer writes snapshots in
+the behaviour format, evaluates success by D4RL's rule and resumes from its last snapshot."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from proto_brax.analysis.crosscheck import native_rollout
+from proto_brax.data import generate as g
+from proto_brax.data import native_behavior as nb
+from proto_brax.envs import adroit
+from proto_brax.envs.adroit_native import NativeAdroit
+
+
+@pytest.mark.parametrize("task", ["pen", "door"])
+def test_native_env_is_the_cross_checks_native_reference_step_for_step(task):
+    """Same layout (drawn by the MJX env's own sample_layout from the key), same actions: the same observations and
+    rewards as ``crosscheck.native_rollout`` on the capsule model, which adroit_check compares with MJX."""
+    env = NativeAdroit(task, d4rl_reward=False)  # (native_rollout scores gymnasium-robotics' reward)
+    key = jax.random.PRNGKey(3)
+    obs0 = env.reset(key)
+    field, body = adroit.LAYOUT[task]
+    layout = np.asarray(adroit.sample_layout(task, key, env._own))
+    np.testing.assert_array_equal(getattr(env.model, field)[env.ids.body[body]], layout)
+    actions = np.random.default_rng(0).uniform(-1, 1, (15, env.action_size))
+    steps = [env.step(a) for a in actions]
+    ref_obs, ref_rew, _ = native_rollout(task, adroit.load_capsule_model(task), layout, actions)
+    np.testing.assert_allclose(obs0, ref_obs[0], rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(np.stack([s[0] for s in steps]), ref_obs[1:], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose([s[1] for s in steps], ref_rew, rtol=1e-6, atol=1e-6)
+    assert obs0.shape == (adroit.get_task(task).obs_size,) and obs0.dtype == np.float32
+
+
+def test_pen_drop_terminates_only_with_d4rls_rule():
+    """A pen that falls (object z < 0.075) ends the episode under D4RL's reward (the registered env's), not under
+    gymnasium-robotics'."""
+    for d4rl, want in ((True, True), (False, False)):
+        env = NativeAdroit("pen", d4rl_reward=d4rl)
+        env.reset(jax.random.PRNGKey(0))
+        env.data.qpos[-6] += 0.5  # OBJTx slides along −z in pen's XML: the pen's centre from z 0.25 to −0.25
+        _, _, terminal, _ = env.step(np.zeros(env.action_size))
+        assert terminal == want
+
+
+def test_host_loop_sac_writes_behaviour_snapshots_and_resumes(tmp_path):
+    args = nb.Args(env="pen", steps=300, snapshot_every=150, eval_episodes=2, learning_starts=100,
+                   buffer_capacity=1000, batch_size=32, hidden=(16, 16), out=tmp_path / "behavior",
+                   resume_dir=tmp_path / "resume")
+    log = nb.train(args)
+    assert [r["step"] for r in log] == [150, 300]
+    assert all(0.0 <= r["eval_success_rate"] <= 1.0 and np.isfinite(r["eval_return_mean"]) for r in log)
+    assert np.isfinite(log[0]["critic_loss"]) and np.isfinite(log[1]["critic_loss"])  # updates from step 100
+    snaps = g.list_snapshots("pen", tmp_path / "behavior")  # what `datasets make pen-expert` reads
+    assert [s.step for s in snaps] == [150, 300] and snaps[-1].eval_return == pytest.approx(log[-1]["eval_return_mean"])
+    meta = json.loads((tmp_path / "behavior" / "pen" / "step_0000300" / "metadata.json").read_text())
+    assert meta["backend"] == "native" and meta["config"]["trainer"] == "native_behavior"
+    resumed = nb.train(nb.Args(**{**vars(args), "steps": 450}))  # continues from the step-300 state
+    assert [r["step"] for r in resumed] == [450]
+    assert [s.step for s in g.list_snapshots("pen", tmp_path / "behavior")] == [150, 300, 450]
