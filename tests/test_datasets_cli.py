@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -141,6 +142,31 @@ def test_cloned_is_half_expert_half_a_bc_policy_trained_on_its_first_episodes():
     with pytest.raises(ValueError, match="fewer than the 99"):
         datasets.first_episodes(ex, 99)
     assert "pen-cloned" in g.dataset_names() and g.default_size("pen") == 500_000
+
+
+def test_noisy_policy_adds_gaussian_noise_clipped_to_the_box():
+    base = lambda params, obs, key: jnp.full((obs.shape[0], 2), params)  # noqa: E731  (a constant action)
+    noisy = g.noisy_policy(base, 0.2)
+    a = np.asarray(noisy(0.0, jnp.zeros((20_000, 3)), jax.random.PRNGKey(0)))
+    assert abs(a.mean()) < 0.01 and abs(a.std() - 0.2) < 0.01  # N(0, 0.2²) around the action
+    edge = np.asarray(noisy(0.95, jnp.zeros((20_000, 3)), jax.random.PRNGKey(1)))
+    assert edge.max() == 1.0 and np.mean(edge == 1.0) == pytest.approx(0.4013, abs=0.02)  # P(N > 0.05 / 0.2)
+
+
+def test_human_is_25_noisy_expert_episodes():
+    """Issue 36's human-sized data: D4RL's 25 demonstrations, one env each for one episode length (point: 50 steps),
+    from the expert snapshot with N(0, 0.2²) action noise; deterministic."""
+    data, meta = datasets.make_dataset("point-human", progress=False)
+    assert meta["kind"] == "human" and meta["num_envs"] == 25 and meta["size"] == 25 * 50 == data.rewards.shape[0]
+    (info,) = meta["behavior"]
+    assert info["action_noise"] == 0.2 and info["step"] == meta["expert_snapshot"]["step"]
+    assert "stands in" in meta["note"] and "pen-human" in g.dataset_names()
+    assert g.default_size("pen", "human") == 25 * 100 and g.default_size("door", "human") == 25 * 200
+    assert datasets.dataset_path("point-human").name == "point-human.npz"
+    again, _ = datasets.make_dataset("point-human", progress=False)
+    assert content_hash(again) == content_hash(data)
+    assert datasets.stale_reason(meta) is None
+    assert "expert snapshot" in datasets.stale_reason({**meta, "expert_snapshot": {"step": 1}})
 
 
 def test_episodes_are_contiguous_and_bounded(medium):

@@ -255,7 +255,7 @@ def cmd_list(a: List) -> None:
 
     for name in dataset_names():
         env, kind = parse_name(name)
-        size = default_size(env) * (2 if kind == "medium-expert" else 1)
+        size = default_size(env, kind) * (2 if kind == "medium-expert" else 1)
         path = dataset_path(name, None, 0, a.cache_dir)
         state = "-"
         if path.exists():

@@ -91,9 +91,9 @@ def _rebuild_hint_for(path: Path) -> str | None:
 
 def stale_reason(meta: dict, behavior_root: Path | None = None) -> str | None:
     """Why a cached dataset no longer matches what ``make`` would generate now (a snapshot its kind is made from —
-    medium for medium and medium-replay, expert for expert and cloned, both for medium-expert — is not the one the
-    current rule picks: new snapshots, or a changed rule; AntMaze: its controller is not the last ant-goal snapshot),
-    or None when it is current."""
+    medium for medium and medium-replay, expert for expert, cloned and human, both for medium-expert — is not the one
+    the current rule picks: new snapshots, or a changed rule; AntMaze: its controller is not the last ant-goal
+    snapshot), or None when it is current."""
     if "controller" in meta:  # AntMaze: made with the ant-goal controller's last snapshot of the time
         from proto_brax.data import generate as g
 
@@ -102,7 +102,7 @@ def stale_reason(meta: dict, behavior_root: Path | None = None) -> str | None:
         return None if had == last else (f"it was generated with the {meta['controller']['env']} controller at step "
                                          f"{had}, the last snapshot is step {last}")
     uses = {"medium": ("medium",), "medium-replay": ("medium",), "expert": ("expert",), "cloned": ("expert",),
-            "medium-expert": ("medium", "expert")}.get(meta.get("kind"), ())
+            "human": ("expert",), "medium-expert": ("medium", "expert")}.get(meta.get("kind"), ())
     if not uses or "expert_snapshot" not in meta:
         return None
     now = current_snapshots(meta["env"], behavior_root)
@@ -123,9 +123,9 @@ def cache_dir(override: Path | None = None) -> Path:
 def dataset_path(name: str, size: int | None = None, seed: int = 0, cache: Path | None = None) -> Path:
     from proto_brax.data.generate import default_size, parse_name
 
-    env, _ = parse_name(name)
-    size = size or default_size(env)
-    suffix = "" if (size == default_size(env) and seed == 0) else f"-n{size}-seed{seed}"
+    env, kind = parse_name(name)
+    size = size or default_size(env, kind)
+    suffix = "" if (size == default_size(env, kind) and seed == 0) else f"-n{size}-seed{seed}"
     return cache_dir(cache) / f"{name}{suffix}.npz"
 
 
@@ -216,7 +216,9 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     from proto_brax.data.dataset import episode_return_stats
 
     env_name, kind = g.parse_name(name)
-    size = size or g.default_size(env_name)
+    size = size or g.default_size(env_name, kind)
+    if kind == "human":  # one env per demonstration: each runs its episode to the time limit
+        num_envs = g.HUMAN_EPISODES
     if size % num_envs:
         raise ValueError(f"size ({size}) must be a multiple of num_envs ({num_envs}).")
     spec = envs.get_spec(env_name)
@@ -247,6 +249,11 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
         policies.append(uniform)
     elif kind in ("medium", "expert"):
         policies.append(snap_policy(medium if kind == "medium" else expert))
+    elif kind == "human":
+        label, policy, params, info = snap_policy(expert)
+        policies.append((label, g.noisy_policy(policy, g.HUMAN_NOISE), params, {**info, "action_noise": g.HUMAN_NOISE}))
+        meta["note"] = ("D4RL's human data are people's demonstrations; here the suite's expert with N(0, "
+                        f"{g.HUMAN_NOISE}²) action noise stands in, {g.HUMAN_EPISODES} of them (D4RL's number).")
     elif kind == "medium-replay":
         policies.append(uniform)
         policies += [snap_policy(s) for s in snaps if s.step <= medium.step]

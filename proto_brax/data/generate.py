@@ -78,7 +78,9 @@ DEFAULT_SIZE = {"point": 100_000, "pen": 500_000}
 BEHAVIOR_ROOT = Path(__file__).resolve().parents[2] / "checkpoints" / "behavior"
 
 
-def default_size(env: str) -> int:
+def default_size(env: str, kind: str | None = None) -> int:
+    if kind == "human":  # one episode per demonstration (an early termination starts another in its slot)
+        return HUMAN_EPISODES * envs.get_spec(env).episode_length
     return DEFAULT_SIZE.get(env, 1_000_000)
 
 
@@ -89,14 +91,17 @@ ANTMAZE_KINDS = ("play", "diverse")
 # be recorded here: ``--dataset D4RL/pen/human-v2`` loads them from a user's Minari cache). point-cloned is the same
 # recipe on the test task.
 ADROIT_ENVS = ("pen", "door", "hammer")
-ADROIT_KINDS = ("expert", "cloned")
+ADROIT_KINDS = ("expert", "cloned", "human")
+# ``human``: the size of D4RL's human data (25 demonstrations), recorded from the suite's expert with Gaussian action
+# noise standing in for a human's imprecision (a suite choice: D4RL's demonstrations came from people in VR).
+HUMAN_EPISODES, HUMAN_NOISE = 25, 0.2
 # Gymnasium's MuJoCo v5 locomotion on MJX (proto_brax.envs.gym_v5, the dynamics of Minari's mujoco/* data): the same
 # kinds, from behaviour policies trained on the port (``python -m proto_brax.data.behavior --env hopper-v5``).
 GYM_V5_ENVS = tuple(f"{env}-v5" for env in LOCOMOTION)
 FAMILIES = ((DATASET_ENVS, KINDS), (ANTMAZE_ENVS, ANTMAZE_KINDS), (ADROIT_ENVS, ADROIT_KINDS),
-            (("point",), ("cloned",)), (GYM_V5_ENVS, KINDS))
+            (("point",), ("cloned", "human")), (GYM_V5_ENVS, KINDS))
 # Each kind's index folds into the generation key; new kinds are appended so existing datasets keep their keys.
-KEY_KINDS = KINDS + ("cloned",)
+KEY_KINDS = KINDS + ("cloned", "human")
 
 
 def dataset_key(seed: int, kind: str) -> jax.Array:
@@ -223,6 +228,17 @@ def stochastic_policy(nets) -> ParamPolicy:
         return sample_tanh_gaussian(key, mean, log_std)[0]
 
     return policy
+
+
+def noisy_policy(policy: ParamPolicy, sigma: float) -> ParamPolicy:
+    """``policy`` with N(0, σ²) added to each action, clipped to the action box."""
+
+    def noisy(params, obs, key):
+        k_act, k_noise = jax.random.split(key)
+        action = policy(params, obs, k_act)
+        return jnp.clip(action + sigma * jax.random.normal(k_noise, action.shape), -1.0, 1.0)
+
+    return noisy
 
 
 def rollouts(env, horizon: int, policy: ParamPolicy, params, key, num_envs: int, steps: int, segment: int, bar=None):

@@ -64,7 +64,8 @@ def default_id(name: str, size: int | None = None, seed: int = 0) -> str:
     from proto_brax.data.generate import default_size, parse_name
 
     env, kind = parse_name(name)
-    suffix = "" if (size in (None, default_size(env)) and seed == 0) else f"-n{size or default_size(env)}-seed{seed}"
+    default = default_size(env, kind)
+    suffix = "" if (size in (None, default) and seed == 0) else f"-n{size or default}-seed{seed}"
     return f"proto_brax/{env}/{kind}{suffix}-v0"
 
 
