@@ -27,7 +27,9 @@ def bundle(tmp_path_factory):
     root = tmp_path_factory.mktemp("bundle")
     data_file = root / "point-noisy.npz"
     save_npz(data_file, jax.device_get(point_dataset()), {"env": "point", "kind": "noisy-expert"})
-    meta = pretrain.pretrain(pretrain.PretrainArgs(dataset=str(data_file), out=root / "eql", **ARGS))
+    with pytest.MonkeyPatch.context() as mp:  # the resume state of an unfinished run goes under $PROTO_BRAX_RUNS
+        mp.setenv("PROTO_BRAX_RUNS", str(root / "runs"))
+        meta = pretrain.pretrain(pretrain.PretrainArgs(dataset=str(data_file), out=root / "eql", **ARGS))
     return root, data_file, meta
 
 
@@ -38,6 +40,8 @@ def test_bundle_round_trip_is_bit_exact(bundle):
     assert {"returns_per_seed", "normalized_score_mean"} <= set(meta2["offline_eval"])
     assert (meta2["reward_scale"], meta2["reward_shift"]) == (1.0, 0.0)  # point's rule: raw rewards
     assert state.actor_opt is not None and state.value is not None
+    # its chunks were saved for a resume while it ran, and removed once the bundle was saved
+    assert meta2["resumed_after_chunk"] == 0 and list((root / "runs" / "pretrain").iterdir()) == []
     # save again from the restored state and restore: identical leaves (params and optimizer state)
     checkpoints.save_bundle(root / "copy", state, {k: v for k, v in meta2.items() if k != "format_version"})
     again, _ = checkpoints.load_bundle(root / "copy")

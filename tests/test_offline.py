@@ -162,3 +162,44 @@ def test_bad_pretrain_config():
         PretrainConfig(steps=1000, log_every=300)
     with pytest.raises(ValueError, match="Unknown offline hyper-parameter"):
         OfflineHParams.create(alpah=1.0)
+
+
+def test_an_interrupted_pretraining_resumes_to_the_uninterrupted_result(tmp_path):
+    """A kill after chunk 2 of 3 (here: the callback raises), then a rerun with the same resume directory: the final
+    state, the per-chunk metrics and the evaluation equal an uninterrupted run's, bit for bit."""
+    cfg = PretrainConfig(algo="eql", env="point", net=NetworkConfig(hidden=(16, 16)), steps=300, log_every=100,
+                         batch_size=32, eval_episodes=2)
+    pre, hp, data = make_pretrain(cfg), OfflineHParams.create(), _point_data()
+    straight, m_straight, r_straight = run_pretrain(pre, hp, [0, 1], data)
+
+    def kill_after_two(c, m):
+        if c == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_pretrain(pre, hp, [0, 1], data, callback=kill_after_two, resume=tmp_path)
+    ran = []
+    resumed, m_resumed, r_resumed = run_pretrain(pre, hp, [0, 1], data, callback=lambda c, m: ran.append(c),
+                                                 resume=tmp_path)
+    assert ran == [2]  # only the chunk after the last saved one
+    for a, b in zip(jax.tree.leaves(straight), jax.tree.leaves(resumed)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    for k in m_straight:
+        np.testing.assert_array_equal(np.asarray(m_straight[k]), np.asarray(m_resumed[k]))
+    np.testing.assert_array_equal(np.asarray(r_straight), np.asarray(r_resumed))
+
+
+def test_a_pretraining_resumes_only_from_its_own_configuration(tmp_path, monkeypatch):
+    from proto_brax.experiment.pretrain import PretrainArgs, partial_dir
+
+    monkeypatch.setenv("PROTO_BRAX_RUNS", str(tmp_path))
+    base = PretrainArgs(dataset="hopper-medium", algo="eql", out=tmp_path / "a")
+    here = partial_dir(base, "hash1")
+    assert here.parent == tmp_path / "pretrain" and here.name.startswith("hopper-medium-eql-")
+    assert partial_dir(PretrainArgs(dataset="hopper-medium", algo="eql", out=tmp_path / "b", overwrite=True),
+                       "hash1") == here  # where the bundle goes does not change its numbers
+    for other in (PretrainArgs(dataset="hopper-medium", algo="eql", seeds=(1,)),
+                  PretrainArgs(dataset="hopper-medium", algo="eql", hp={"alpha": 0.5}),
+                  PretrainArgs(dataset="hopper-medium", algo="eql", steps=200_000)):
+        assert partial_dir(other, "hash1") != here
+    assert partial_dir(base, "hash2") != here  # other data under the same name

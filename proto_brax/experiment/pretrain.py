@@ -11,6 +11,10 @@ network config, steps, seeds, offline evaluation (return and normalized score) a
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
+import os
+import shutil
 import time
 from pathlib import Path
 from typing import Literal
@@ -56,10 +60,22 @@ class PretrainArgs:
     out: Path | None = None
     """Bundle directory; default checkpoints/pretrained/<dataset>/<algo>."""
     overwrite: bool = False
+    resume: bool = True
+    """Continue an interrupted run of the same configuration (arguments and dataset content) from its last chunk:
+    its state is kept under $PROTO_BRAX_RUNS/pretrain (default ~/.cache/proto_brax/runs) until the bundle is saved."""
 
 
+RUN_ONLY = ("out", "overwrite", "resume")  # PretrainArgs fields that do not change the bundle's numbers
 
 
+def partial_dir(args: PretrainArgs, data_hash: str) -> Path:
+    """Where an unfinished run of ``args`` on the data with content hash ``data_hash`` keeps its chunks: one
+    directory per configuration, so only the same run resumes from it."""
+    record = {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(args).items()
+              if k not in RUN_ONLY}
+    key = hashlib.sha256(json.dumps([record, data_hash], sort_keys=True).encode()).hexdigest()[:16]
+    runs = Path(os.environ.get("PROTO_BRAX_RUNS", Path.home() / ".cache" / "proto_brax" / "runs"))
+    return runs / "pretrain" / f"{Path(str(args.dataset)).name}-{args.algo}-{key}"
 
 
 def check_out(out: Path, overwrite: bool) -> None:
@@ -128,9 +144,14 @@ def pretrain(args: PretrainArgs) -> dict:
         bar.set_postfix({k: f"{float(np.mean(v)):.3g}" for k, v in m.items()
                          if k in ("critic_loss", "value_loss", "actor_loss", "bc_loss")})
 
-    state, hist, returns = run_pretrain(pre, hp, list(args.seeds), dataset, callback=on_chunk)
+    partial, done = partial_dir(args, data_hash) if args.resume else None, 0
+    if partial is not None and (latest := checkpoints.latest_step(partial)) is not None:
+        done = checkpoints.read_metadata(latest)["chunks_done"]
+        print(f"resuming after chunk {done} of {cfg.steps // cfg.log_every} ({partial})", flush=True)
+        bar.update(done * cfg.log_every)
+    state, hist, returns = run_pretrain(pre, hp, list(args.seeds), dataset, callback=on_chunk, resume=partial)
     bar.close()
-    seconds = time.time() - t0
+    seconds, ran = time.time() - t0, cfg.steps - done * cfg.log_every
     returns = np.asarray(returns)
     scores = np.asarray(envs.normalized_score(env, returns.mean(-1)))
     meta = {
@@ -147,12 +168,15 @@ def pretrain(args: PretrainArgs) -> dict:
             "normalized_score_mean": float(np.nanmean(scores)) if np.isfinite(scores).any() else float("nan"),
         },
         "final_losses": {k: np.asarray(v[-1]).tolist() for k, v in hist.items()},
-        "seconds": seconds, "seconds_first_chunk_incl_compile": first.get("t"),
-        "seconds_per_1e5_steps_all_seeds": (seconds - first.get("t", 0.0)) / max(cfg.steps - cfg.log_every, 1) * 1e5
-        if cfg.steps > cfg.log_every else None,
+        # this process's timing: a resumed run times the chunks it ran (after ``resumed_after_chunk``)
+        "seconds": seconds, "seconds_first_chunk_incl_compile": first.get("t"), "resumed_after_chunk": done,
+        "seconds_per_1e5_steps_all_seeds": (seconds - first.get("t", 0.0)) / (ran - cfg.log_every) * 1e5
+        if ran > cfg.log_every else None,
         "version": __version__,
     }
     checkpoints.save_bundle(out, state, meta)
+    if partial is not None:
+        shutil.rmtree(partial, ignore_errors=True)  # (our own resume state, never the user's: the bundle is saved)
     print(f"{args.algo} on {dname}: offline return {returns.mean():.1f} (per seed {np.round(returns.mean(-1), 1)}), "
           f"normalized {meta['offline_eval']['normalized_score_mean']:.1f}; {seconds:.0f} s -> {out}")
     return meta

@@ -3,19 +3,22 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Callable, Literal
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
-from proto_brax import envs
+from proto_brax import checkpoints, envs
 from proto_brax.agents import cql, eql, iql, sql
 from proto_brax.agents.fqe import bc_fqe_update
 from proto_brax.agents.insample import OfflineHParams, OfflineState, init_offline_state
 from proto_brax.agents.registry import GAUSSIAN_POLICY_ALGOS, PRETRAIN_ALGOS, TEMPERATURE_ALGOS, VALUE_ALGOS
 from proto_brax.config import FinetuneConfig
 from proto_brax.data.dataset import OfflineDataset
+from proto_brax.files import nan_for_null, strict_json
 from proto_brax.networks import NetworkConfig, make_networks
 from proto_brax.train.evaluate import run_episodes
 
@@ -92,18 +95,30 @@ def make_pretrain(cfg: PretrainConfig) -> Pretrain:
                     act_size=act_size)
 
 
-def run_pretrain(pre: Pretrain, hp: OfflineHParams, seeds, dataset: OfflineDataset, callback=None):
-    """All seeds in one vmapped program. Returns (state with a leading seed axis, per-chunk metrics, eval returns)."""
+def run_pretrain(pre: Pretrain, hp: OfflineHParams, seeds, dataset: OfflineDataset, callback=None,
+                 resume: Path | None = None):
+    """All seeds in one vmapped program. Returns (state with a leading seed axis, per-chunk metrics, eval returns).
+
+    With ``resume``, the state and the metrics so far are saved there after each chunk (the newest kept), and a
+    rerun continues after the last saved chunk. Chunk c's keys depend on c alone, so a resumed run ends with the
+    state of an uninterrupted one."""
     keys = jax.vmap(jax.random.PRNGKey)(jnp.asarray(seeds, jnp.uint32))
     init = jax.jit(jax.vmap(pre.init, in_axes=(None, 0)))
     chunk = jax.jit(jax.vmap(pre.chunk, in_axes=(0, None, None, 0)), donate_argnums=(0,))
     state = init(hp, keys)
-    history = []
-    for c in range(pre.cfg.steps // pre.cfg.log_every):
+    history, start = [], 0
+    if resume is not None and (latest := checkpoints.latest_step(resume)) is not None:
+        state, meta = checkpoints.restore(latest, state)
+        start = meta["chunks_done"]
+        history = [{k: np.asarray(nan_for_null(v), np.float32) for k, v in h.items()} for h in meta["history"]]
+    for c in range(start, pre.cfg.steps // pre.cfg.log_every):
         ck = jax.vmap(jax.random.fold_in, in_axes=(0, None))(keys, c + 1)
         state, m = chunk(state, hp, dataset, ck)
         m = jax.device_get(m)
         history.append(m)
+        if resume is not None:
+            record = [{k: np.asarray(v).tolist() for k, v in h.items()} for h in history]
+            checkpoints.save_step(resume, c + 1, state, {"chunks_done": c + 1, "history": strict_json(record)}, keep=1)
         if callback is not None:
             callback(c, m)
     ek = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
