@@ -77,15 +77,18 @@ def make_trainer(args: Args):
     def init(key: jax.Array) -> Trainer:
         k_learner, k_run = jax.random.split(key)
         learner = init_learner(k_learner, nets, sac.ONLINE, hp, task.obs_size, task.act_size, None)
-        return Trainer(learner=learner, buffer=replay_init(args.buffer_capacity, task.obs_size, task.act_size),
-                       key=k_run, step=jnp.zeros((), jnp.int32))
+        trainer = Trainer(learner=learner, buffer=replay_init(args.buffer_capacity, task.obs_size, task.act_size),
+                          key=k_run, step=jnp.zeros((), jnp.int32))
+        # Distinct arrays for every leaf (π̄ and π₀ start as the actor's, the target as the critic's): ``learn``
+        # donates the whole state, and one buffer cannot be donated twice.
+        return jax.tree.map(jnp.array, trainer)
 
     @functools.partial(jax.jit, static_argnames="deterministic")
     def act(learner: Learner, obs: jax.Array, key: jax.Array, step: jax.Array, deterministic: bool = False):
         """π's action at ``obs`` (sampled with the key folded with ``step``: no host-side key splitting)."""
         return sac.act(nets, learner, obs, jax.random.fold_in(key, step), hp, deterministic)
 
-    @jax.jit
+    @functools.partial(jax.jit, donate_argnums=(0,))  # (in place: the 10⁶-row buffer is not copied every step)
     def learn(trainer: Trainer, transition: Transition) -> tuple[Trainer, dict]:
         """Insert one transition; then, from ``learning_starts`` on, one SAC gradient step on a replay batch."""
         buffer = replay_insert(trainer.buffer, jax.tree.map(lambda x: x[None], transition))
