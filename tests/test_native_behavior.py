@@ -62,3 +62,21 @@ def test_host_loop_sac_writes_behaviour_snapshots_and_resumes(tmp_path):
     resumed = nb.train(nb.Args(**{**vars(args), "steps": 450}))  # continues from the step-300 state
     assert [r["step"] for r in resumed] == [450]
     assert [s.step for s in g.list_snapshots("pen", tmp_path / "behavior")] == [150, 300, 450]
+
+
+def test_host_loop_sac_trains_on_gymnasiums_own_v5_env(tmp_path):
+    """Issue 34's behaviour policies: the same trainer on gymnasium's Hopper-v5 (its sizes are the MJX port's; the same
+    key resets to the same state); no success rule, so the rate is None."""
+    from proto_brax import envs
+    from proto_brax.envs.gym_v5 import NativeGymV5
+
+    native, port = NativeGymV5("hopper-v5"), envs.make_env("hopper-v5")
+    assert (native.observation_size, native.action_size) == (port.observation_size, port.action_size)
+    np.testing.assert_array_equal(native.reset(jax.random.PRNGKey(4)), NativeGymV5("hopper-v5").reset(
+        jax.random.PRNGKey(4)))
+    args = nb.Args(env="hopper-v5", steps=200, snapshot_every=100, eval_episodes=1, learning_starts=50,
+                   buffer_capacity=500, batch_size=16, hidden=(8, 8), out=tmp_path / "behavior",
+                   resume_dir=tmp_path / "resume")
+    log = nb.train(args)
+    assert [r["step"] for r in log] == [100, 200] and all(r["eval_success_rate"] is None for r in log)
+    assert [s.step for s in g.list_snapshots("hopper-v5", tmp_path / "behavior")] == [100, 200]

@@ -1,11 +1,14 @@
-"""Behaviour policies for Adroit on native MuJoCo: SAC from scratch, the env stepped in a Python loop, the update
-jitted (issue 36: MJX trains an Adroit expert at ~6 SAC steps/s here; native stepping leaves the update as the cost).
+"""Behaviour policies on native MuJoCo: SAC from scratch, the env stepped in a Python loop, the update jitted. For
+Adroit (issue 36: MJX trains an expert at ~6 SAC steps/s here) and Gymnasium's v5 locomotion (issue 34: Farama's
+``mujoco/*`` data came from the native envs; MJX's hopper-v5 trains at a few steps/s beside other jobs); native
+stepping leaves the update as the cost.
 
 The agent is the suite's own SAC (``agents.sac`` with α₀ = 0, ``behavior.SAC_SCRATCH``'s temperature 1 and target
 entropy −|A|), its replay buffer and networks; only the env loop runs on the host (``envs.adroit_native``: the MJX
-env's capsule model, reset, observation, D4RL reward and termination). Per env step: one jitted action, one native
-step, one jitted insert + gradient step (after ``learning_starts``). The time limit (D4RL's: pen 100, door and hammer
-200) truncates: bootstrapping continues; only a true termination (pen dropped, non-finite physics) stops it.
+env's capsule model, reset, observation, D4RL reward and termination; ``envs.gym_v5.NativeGymV5``: gymnasium's own
+v5 env). Per env step: one jitted action, one native step, one jitted insert + gradient step (after
+``learning_starts``). The registered time limit (D4RL's pen 100, door and hammer 200; v5 1000) truncates:
+bootstrapping continues; only a true termination (pen dropped, a fallen hopper, non-finite physics) stops it.
 
 Snapshots are the format of ``checkpoints/behavior/`` (``behavior.snapshot_dir``: the actor and its record with
 ``eval_return_mean``, so ``python -m proto_brax.datasets make pen-expert`` picks them up), with the evaluation's
@@ -14,6 +17,7 @@ step are saved under ``--resume-dir``: a rerun continues from there with a fresh
 not saved; the trajectory then differs from an uninterrupted run's from that point).
 
     python -m proto_brax.data.native_behavior --env pen --steps 300000
+    python -m proto_brax.data.native_behavior --env hopper-v5 --steps 300000
 """
 
 from __future__ import annotations
@@ -35,14 +39,14 @@ from proto_brax.config import FinetuneConfig
 from proto_brax.data.behavior import SAC_SCRATCH, snapshot_dir
 from proto_brax.data.dataset import Transition
 from proto_brax.data.replay import ReplayBuffer, replay_init, replay_insert, replay_sample
-from proto_brax.envs import adroit
 from proto_brax.envs.adroit_native import NativeAdroit
+from proto_brax.envs.gym_v5 import NativeGymV5
 from proto_brax.networks import NetworkConfig, make_networks
 
 
 @dataclasses.dataclass
 class Args:
-    env: str = "pen"  # pen, door or hammer
+    env: str = "pen"  # pen, door, hammer, or a Gymnasium v5 env (hopper-v5, walker2d-v5, halfcheetah-v5, ant-v5)
     steps: int = 300_000  # env steps (= gradient steps after learning_starts)
     snapshot_every: int = 20_000  # env steps between evaluated, saved snapshots (and resume points)
     eval_episodes: int = 10
@@ -70,14 +74,15 @@ def make_trainer(args: Args):
     cfg = FinetuneConfig(env=args.env, algo="sac", regularizer=False, batch_size=args.batch_size,
                          steps=args.steps, eval_every=args.snapshot_every,
                          net=NetworkConfig(hidden=tuple(args.hidden)))
-    task = adroit.get_task(args.env)  # its sizes
-    nets = make_networks(cfg.net, task.act_size)
+    env = native_env(args.env)  # its sizes
+    nets = make_networks(cfg.net, env.action_size)
     hp = sac.SACHParams.create(**SAC_SCRATCH)
 
     def init(key: jax.Array) -> Trainer:
         k_learner, k_run = jax.random.split(key)
-        learner = init_learner(k_learner, nets, sac.ONLINE, hp, task.obs_size, task.act_size, None)
-        trainer = Trainer(learner=learner, buffer=replay_init(args.buffer_capacity, task.obs_size, task.act_size),
+        learner = init_learner(k_learner, nets, sac.ONLINE, hp, env.observation_size, env.action_size, None)
+        trainer = Trainer(learner=learner, buffer=replay_init(args.buffer_capacity, env.observation_size,
+                                                             env.action_size),
                           key=k_run, step=jnp.zeros((), jnp.int32))
         # Distinct arrays for every leaf (π̄ and π₀ start as the actor's, the target as the critic's): ``learn``
         # donates the whole state, and one buffer cannot be donated twice.
@@ -109,8 +114,14 @@ def make_trainer(args: Args):
     return cfg, hp, init, act, learn
 
 
-def evaluate(env: NativeAdroit, act, learner: Learner, episodes: int, key: jax.Array) -> dict:
-    """Deterministic episodes to the time limit (or termination): returns and D4RL's success rule."""
+def native_env(name: str):
+    """The native env of a registered name: Adroit on its capsule model, or gymnasium's own v5 env."""
+    return NativeGymV5(name) if name.endswith("-v5") else NativeAdroit(name)
+
+
+def evaluate(env, act, learner: Learner, episodes: int, key: jax.Array) -> dict:
+    """Deterministic episodes to the time limit (or termination): returns, and D4RL's success rule where the task has
+    one (Adroit; else the success rate is None)."""
     spec = envs.get_spec(env.task)
     returns, successes = [], []
     for k in jax.random.split(key, episodes):
@@ -121,14 +132,15 @@ def evaluate(env: NativeAdroit, act, learner: Learner, episodes: int, key: jax.A
             if terminal:
                 break
         returns.append(ret)
-        successes.append(steps_ok > spec.success_steps)
-    return {"returns": returns, "return_mean": float(np.mean(returns)), "success_rate": float(np.mean(successes))}
+        successes.append(spec.success_steps is not None and steps_ok > spec.success_steps)
+    rate = float(np.mean(successes)) if spec.success_steps is not None else None
+    return {"returns": returns, "return_mean": float(np.mean(returns)), "success_rate": rate}
 
 
 def train(args: Args) -> list[dict]:
     """Train (or resume), saving a snapshot every ``snapshot_every`` steps; returns the snapshots' records."""
     cfg, hp, init, act, learn = make_trainer(args)
-    env, eval_env, spec = NativeAdroit(args.env), NativeAdroit(args.env), envs.get_spec(args.env)
+    env, eval_env, spec = native_env(args.env), native_env(args.env), envs.get_spec(args.env)
     trainer = init(jax.random.PRNGKey(args.seed))
     resume = Path(args.resume_dir) / args.env
     if (latest := checkpoints.latest_step(resume)) is not None:
@@ -174,8 +186,9 @@ def train(args: Args) -> list[dict]:
                    "version": __version__}
             checkpoints.save(snapshot_dir(args.out, args.env, step), trainer.learner.actor, rec)
             checkpoints.save_step(resume, step, trainer, {"step": step, "env": args.env}, keep=1)
-            print(f"[{args.env}] step {step} eval {ev['return_mean']:.1f} success {ev['success_rate']:.2f} train "
-                  f"{rec['train_return']:.1f} ({rec['steps_per_second']:.0f} steps/s)", flush=True)
+            success = "" if ev["success_rate"] is None else f" success {ev['success_rate']:.2f}"
+            print(f"[{args.env}] step {step} eval {ev['return_mean']:.1f}{success} train {rec['train_return']:.1f} "
+                  f"({rec['steps_per_second']:.0f} steps/s)", flush=True)
             log.append(rec)
             t0 = time.time()
     return log

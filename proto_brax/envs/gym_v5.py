@@ -300,3 +300,24 @@ def lockstep(env: GymV5, step, native, actions: np.ndarray) -> dict[str, np.ndar
         out["done"].append(bool(state.done))
         out["native_done"].append(bool(terminated))
     return {k: np.asarray(v) for k, v in out.items()}
+
+
+class NativeGymV5:
+    """Gymnasium's own v5 env behind ``adroit_native.NativeAdroit``'s interface, for the host-loop trainer
+    (``data.native_behavior``): ``reset(key) -> obs`` (gymnasium's reset noise, seeded from the key),
+    ``step(action) -> (obs, reward, terminal, success)`` with gymnasium's termination and no success rule; the time
+    limit is the caller's (1000 steps, as the registered env's)."""
+
+    def __init__(self, name: str):
+        self.task = name
+        self.env = native_env(name.removesuffix("-v5"))
+        self.observation_size = int(self.env.observation_space.shape[0])
+        self.action_size = int(self.env.action_space.shape[0])
+
+    def reset(self, key: jax.Array) -> np.ndarray:
+        obs, _ = self.env.reset(seed=int(jax.random.randint(key, (), 0, 2**31 - 1)))
+        return np.asarray(obs, np.float32)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool]:
+        obs, reward, terminated, _, _ = self.env.step(np.asarray(action, np.float64))
+        return np.asarray(obs, np.float32), float(reward), bool(terminated), False
