@@ -16,6 +16,11 @@ import dataclasses
 import time
 from pathlib import Path
 
+if __name__ == "__main__":  # as a command line: the quiet start before the imports that print (MJX's warp lines)
+    from proto_brax.startup import quiet_start
+
+    quiet_start()
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -98,9 +103,6 @@ if __name__ == "__main__":
 
     import tyro
 
-    from proto_brax.startup import quiet_start
-
-    quiet_start()
     args = tyro.cli(Args)
     if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":  # before JAX starts its backend
         os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()

@@ -27,6 +27,11 @@ import functools
 import time
 from pathlib import Path
 
+if __name__ == "__main__":  # as a command line: the quiet start before the imports that print (MJX's warp lines)
+    from proto_brax.startup import quiet_start
+
+    quiet_start()
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -197,7 +202,4 @@ def train(args: Args) -> list[dict]:
 if __name__ == "__main__":
     import tyro
 
-    from proto_brax.startup import quiet_start
-
-    quiet_start()
     train(tyro.cli(Args))
