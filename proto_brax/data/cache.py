@@ -10,21 +10,17 @@ Kinds (per env, D4RL's definitions adapted to the suite's own SAC runs, ``checkp
 * ``medium-replay``: the policies an agent went through up to medium: the uniform policy (the replay buffer's warm-up)
   then every snapshot up to and including medium, each contributing an equal share of the transitions (stochastic);
 * ``medium-expert``: the ``medium`` dataset followed by the ``expert`` dataset, exactly (twice the size; built from
-  the cached parts when they exist, else by generating both).
+  the cached parts when they exist, else by generating both);
+* ``cloned`` (Adroit, point): D4RL's recipe, half expert rows, half a BC policy's (``make_cloned``);
+* ``human`` (Adroit, point): D4RL's human-data size, 25 expert episodes with Gaussian action noise.
 
 Each dataset is ``size`` transitions from ``num_envs`` envs run side by side (episodes stay contiguous per env); time
 limits are ``timeouts``, true terminations ``terminals``. Same name, size and seed ⇒ identical arrays (checked by the
 content hash in the metadata), given the same XLA threading and CPU: ``make`` generates with one XLA thread
 (``generation_xla_flags``), since multi-threaded rounding gives hopper and walker2d other episodes, and records the
 CPU (``envs.host_cpu``): XLA compiles for the host CPU, and another CPU can build other episodes (an AVX-512 machine
-did, against two earlier AVX2 machines that agreed).
-
-    python -m proto_brax.datasets list
-    python -m proto_brax.datasets make hopper-medium [--size N] [--seed S]
-    python -m proto_brax.datasets info hopper-medium
-    python -m proto_brax.datasets export hopper-medium --minari [--id proto_brax/hopper/medium-v0] [--out DIR]
-    python -m proto_brax.datasets references hopper
-    python -m proto_brax.datasets measure ant            # behaviour-policy returns of every snapshot (picks medium)
+did, against two earlier AVX2 machines that agreed). The commands that make, export and inspect them are listed in
+``proto_brax.cli.datasets``.
 """
 
 from __future__ import annotations
