@@ -81,25 +81,15 @@ def mjx_speed(env, batch: int, steps: int, reps: int) -> dict:
 def native_speed(maze: str, n: int, reps: int) -> dict:
     import gymnasium as gym
     import gymnasium_robotics
-    import numpy as np
 
+    from proto_brax.analysis.crosscheck import native_step_times
     from proto_brax.envs.antmaze import FRAME_SKIP, maze_map
 
     gym.register_envs(gymnasium_robotics)
     env = gym.make(NATIVE_IDS[maze], maze_map=maze_map(maze), continuing_task=True,
                    include_cfrc_ext_in_observation=False, max_episode_steps=10**9)
     os.remove(env.unwrapped.tmp_xml_file_path)  # gymnasium-robotics leaves its generated maze XML in the temp dir
-    env.reset(seed=0)
-    actions = np.random.default_rng(0).uniform(-1.0, 1.0, (n, 8)).astype(np.float32)
-    for a in actions[:50]:  # warm-up
-        env.step(a)
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        for a in actions:
-            env.step(a)
-        times.append(time.perf_counter() - t0)
-    env.close()
+    times = native_step_times(env, 8, n, reps)
     seconds = statistics.median(times)
     return {"steps": n, "seconds_per_rep": times, "control_steps_per_s": n / seconds,
             "physics_steps_per_s": FRAME_SKIP * n / seconds}

@@ -138,7 +138,13 @@ def native_speed(gym_id: str, act_size: int, n: int, reps: int) -> dict:
     import gymnasium_robotics  # as in gym_rollout
 
     gym.register_envs(gymnasium_robotics)
-    env = gym.make(gym_id, max_episode_steps=10**9)
+    times = native_step_times(gym.make(gym_id, max_episode_steps=10**9), act_size, n, reps)
+    return {"steps": n, "seconds_per_rep": times, "control_steps_per_s": n / statistics.median(times)}
+
+
+def native_step_times(env, act_size: int, n: int, reps: int) -> list[float]:
+    """Seconds of ``n`` steps of a native gymnasium ``env`` on fixed uniform random actions, per repetition, after a
+    50-step warm-up from ``reset(seed=0)``; the env is closed after."""
     env.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1.0, 1.0, (n, act_size)).astype(np.float32)
     for a in actions[:50]:
@@ -150,7 +156,7 @@ def native_speed(gym_id: str, act_size: int, n: int, reps: int) -> dict:
             env.step(a)
         times.append(time.perf_counter() - t0)
     env.close()
-    return {"steps": n, "seconds_per_rep": times, "control_steps_per_s": n / statistics.median(times)}
+    return times
 
 
 def check_adroit_task(task: str, *, steps: int, batch: int, reps: int, native_steps: int, seed: int,
