@@ -5,6 +5,7 @@
     python -m proto_brax.datasets make hopper-medium [--size N] [--seed S]
     python -m proto_brax.datasets info hopper-medium
     python -m proto_brax.datasets export hopper-medium --minari [--id proto_brax/hopper/medium-v0] [--out DIR]
+    python -m proto_brax.datasets collect hopper-v5 --policy medium --steps 100000 --id local/hopper-v5/medium-v0
     python -m proto_brax.datasets references hopper
     python -m proto_brax.datasets measure ant            # behaviour-policy returns of every snapshot (picks medium)
 """
@@ -68,6 +69,27 @@ class Export:
     cache_dir: Path | None = None
     force: bool = False
     """Replace an existing dataset of that id, only if this command wrote it."""
+
+
+@dataclasses.dataclass
+class Collect:
+    """Record a Minari dataset on Gymnasium's native v5 env with minari's DataCollector, the way Farama recorded
+    mujoco/* (``proto_brax.data.minari_collect``): a behaviour policy of ours, D4RL's references as
+    ref_min_score / ref_max_score, the suite's content hash. Load it with --dataset ID --env ENV."""
+
+    env: tyro.conf.Positional[str]
+    """A Gymnasium v5 env: hopper-v5, walker2d-v5, halfcheetah-v5, ant-v5."""
+    id: str
+    """Minari dataset id to write, [NAMESPACE/]NAME-vVERSION (never replaced)."""
+    policy: str = "medium"
+    """random, medium, expert (the registered datasets' rule over checkpoints/behavior/ENV) or a snapshot step."""
+    steps: int = 100_000
+    """Transitions (the last episode is cut there, as a truncation)."""
+    seed: int = 0
+    out: Path | None = None
+    """Minari datasets root to write under (default: $MINARI_DATASETS_PATH or ~/.minari/datasets)."""
+    behavior_root: Path | None = None
+    """Default: checkpoints/behavior."""
 
 
 @dataclasses.dataclass
@@ -224,6 +246,23 @@ def cmd_export(a: Export) -> Path:
     return path
 
 
+def cmd_collect(a: Collect) -> Path:
+    from tqdm import tqdm
+
+    from proto_brax.data import minari_collect
+
+    command = " ".join(["python -m proto_brax.datasets collect", a.env, "--id", a.id, "--policy", a.policy,
+                        "--steps", str(a.steps), *(["--seed", str(a.seed)] if a.seed else []),
+                        *(["--out", str(a.out)] if a.out else [])])
+    with tqdm(total=a.steps, desc=f"collect {a.env}", unit="step", mininterval=5) as bar:
+        path = minari_collect.collect(a.env, a.id, a.steps, a.policy, a.seed, a.out, a.behavior_root, command, bar)
+    s = minari_collect.summary(path)
+    print(f"{a.id}: {s['transitions']} transitions, {s['episodes']} episodes on Gymnasium's {a.env}, episode return "
+          f"mean {s['return_mean']:.1f} (normalized {s['normalized']:.1f}), content hash {s['content_hash']} -> "
+          f"{path}. Pretrain on it with --dataset {path} --env {a.env}.")
+    return path
+
+
 def cmd_info(a: Info) -> dict:
     from proto_brax import envs
     from proto_brax.data.generate import dataset_names
@@ -296,7 +335,8 @@ def main(argv: list[str] | None = None) -> None:
     from proto_brax.data.generate import dataset_names, parse_name
 
     cmd = tyro.extras.subcommand_cli_from_dict(
-        {"make": Make, "export": Export, "info": Info, "list": List, "references": References, "measure": Measure},
+        {"make": Make, "export": Export, "collect": Collect, "info": Info, "list": List, "references": References,
+         "measure": Measure},
         args=argv,
     )
     # Before JAX starts: the pinned generation numerics (export builds a registered dataset that is not cached).
@@ -307,8 +347,8 @@ def main(argv: list[str] | None = None) -> None:
         os.environ["XLA_FLAGS"] = generation_xla_flags(mjx=mjx)
     from proto_brax.startup import exit_on_input_error
 
-    run = {Make: cmd_make, Export: cmd_export, Info: cmd_info, List: cmd_list, References: cmd_references,
-           Measure: cmd_measure}[type(cmd)]
+    run = {Make: cmd_make, Export: cmd_export, Collect: cmd_collect, Info: cmd_info, List: cmd_list,
+           References: cmd_references, Measure: cmd_measure}[type(cmd)]
     exit_on_input_error(lambda: run(cmd), argv)
 
 
