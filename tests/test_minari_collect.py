@@ -94,3 +94,32 @@ def test_snapshot_policy_samples_the_snapshots_tanh_gaussian(tmp_path):
                                                               jax.random.fold_in(key, t))[0]) for t in range(30)])
     np.testing.assert_allclose(data.actions, expected, rtol=1e-6, atol=1e-6)
     assert np.std(data.actions) > 0.05  # samples, not one repeated action
+
+
+def test_v5_datasets_are_recorded_on_gymnasiums_own_env(tmp_path):
+    """``make hopper-v5-random`` (and every v5 kind) rolls out on Gymnasium's Hopper-v5 (generate.native_rollouts):
+    env-major rows that replay step for step on a fresh native env reset with the recorded key, the time limit and
+    the cut at the end of each env's rows as timeouts, and the same rows from the same seed."""
+    from proto_brax.data.cache import make_dataset
+
+    data, meta = make_dataset("hopper-v5-random", size=240, seed=2, num_envs=4, progress=False)
+    assert meta["backend"] == "native" and meta["size"] == 240 and len(data.rewards) == 240
+    again, _ = make_dataset("hopper-v5-random", size=240, seed=2, num_envs=4, progress=False)
+    np.testing.assert_array_equal(again.observations, data.observations)
+    per_env = 60
+    for j in range(4):
+        rows = slice(j * per_env, (j + 1) * per_env)
+        assert data.terminals[rows][-1] + data.timeouts[rows][-1] == 1  # no episode runs into the next env's rows
+    # env 0's episodes, replayed: reset keys fold (0, env, episode) into the part's key (fold_in(dataset key, 0))
+    key = jax.random.fold_in(g.dataset_key(2, "random"), 0)
+    sim, k = NativeGymV5("hopper-v5"), 0
+    obs = sim.reset(jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(key, 0), 0), 0))
+    for i in range(per_env):
+        np.testing.assert_array_equal(data.observations[i], obs)
+        obs, reward, terminal, _ = sim.step(data.actions[i])
+        np.testing.assert_array_equal(data.next_observations[i], obs)
+        assert data.rewards[i] == np.float32(reward) and data.terminals[i] == float(terminal)
+        if terminal:
+            k += 1
+            obs = sim.reset(jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(key, 0), 0), k))
+    assert k >= 1  # a random hopper falls within 60 steps: the replay crossed a reset

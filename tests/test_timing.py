@@ -30,3 +30,11 @@ def test_aot_compiles_once_and_flops_counts_a_matmul():
     compiled, seconds = timing.aot(lambda x, y: x @ y, jnp.ones((8, 16)), jnp.ones((16, 4)))
     assert seconds > 0 and compiled(jnp.ones((8, 16)), jnp.ones((16, 4))).shape == (8, 4)
     assert timing.flops_of(compiled) == pytest.approx(2 * 8 * 16 * 4, rel=0.1)
+
+
+def test_steady_rate_counts_from_the_first_mark_to_the_last():
+    """peer_brax_sac's rate: (env steps, wall time) marks; the interval between the first and the last only."""
+    from proto_brax.analysis.timing import steady_rate
+
+    assert steady_rate([(1000, 10.0), (6000, 30.0), (11000, 40.0)]) == 10000 / 30.0
+    assert steady_rate([(6000, 30.0), (11000, 40.0)]) == 500.0

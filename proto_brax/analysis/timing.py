@@ -116,3 +116,42 @@ def versions() -> dict:
         except md.PackageNotFoundError:
             out[pkg] = None
     return out
+
+
+def steady_rate(marks: list[tuple[int, float]]) -> float:
+    """Env steps per second between the first and the last of ``marks`` ((env step, wall time) pairs)."""
+    (s0, t0), (s1, t1) = marks[0], marks[-1]
+    return (s1 - s0) / (t1 - t0)
+
+
+def brax_sac_marks(env: str, periods: int, eval_every: int, eval_episodes: int) -> list[tuple[int, float]]:
+    """Run Brax's own SAC trainer (``brax.training.agents.sac.train``: one env, batch 256, one update per env step,
+    1000 prefill steps, 2×256 MLPs without LayerNorm, deterministic evaluation) for ``periods`` evaluation periods of
+    ``eval_every`` env steps; returns the (env step, wall time) of each evaluation (the first is before training).
+    ``benchmarks/peer_brax_sac.py`` runs it in a process of its own."""
+    import functools
+
+    if not hasattr(jax, "device_put_replicated"):  # removed in jax 0.10; brax 0.14's SAC still calls it
+        def device_put_replicated(x, devices):
+            if len(devices) != 1:
+                raise NotImplementedError("the shim replicates over one device only")
+            return jax.device_put(jax.tree.map(lambda a: jnp.expand_dims(a, 0), x), devices[0])
+
+        jax.device_put_replicated = device_put_replicated
+    from brax import envs as brax_envs
+    from brax.training.agents.sac import networks as sac_networks
+    from brax.training.agents.sac import train as sac
+
+    from proto_brax.envs import get_spec
+
+    spec = get_spec(env)
+    marks: list[tuple[int, float]] = []
+    sac.train(
+        environment=brax_envs.get_environment(env, backend=spec.default_backend),
+        num_timesteps=1000 + periods * eval_every,
+        episode_length=spec.episode_length, num_envs=1, num_eval_envs=eval_episodes, learning_rate=3e-4,
+        discounting=0.99, batch_size=256, num_evals=periods + 1, min_replay_size=1000,
+        grad_updates_per_step=1, deterministic_eval=True, max_devices_per_host=1, seed=0,
+        network_factory=functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=(256, 256)),
+        progress_fn=lambda step, metrics: marks.append((int(step), time.time())))
+    return marks

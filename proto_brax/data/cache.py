@@ -218,10 +218,17 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     if size % num_envs:
         raise ValueError(f"size ({size}) must be a multiple of num_envs ({num_envs}).")
     spec = envs.get_spec(env_name)
-    env = envs.make_env(env_name)
+    native = env_name in g.GYM_V5_ENVS  # recorded on gymnasium's own env, as Farama's mujoco/* data
+    if native:
+        from proto_brax.envs.gym_v5 import NativeGymV5
+
+        env = NativeGymV5(env_name)  # (its sizes, for the snapshots' actors)
+    else:
+        env = envs.make_env(env_name)
     key = g.dataset_key(seed, kind)
-    meta = {"name": name, "env": env_name, "backend": spec.default_backend, "kind": kind, "size": size,
-            "seed": seed, "num_envs": num_envs, "episode_length": spec.episode_length, "version": __version__}
+    meta = {"name": name, "env": env_name, "backend": "native" if native else spec.default_backend, "kind": kind,
+            "size": size, "seed": seed, "num_envs": num_envs, "episode_length": spec.episode_length,
+            "version": __version__}
 
     policies: list[tuple[str, object, object, dict]] = []  # (label, policy, params, info)
     if kind != "random":
@@ -265,8 +272,12 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     parts = []
     bar = tqdm(total=total, unit="tr", desc=name, disable=not progress, dynamic_ncols=True)
     for i, ((_, policy, params, info), steps) in enumerate(zip(policies, shares)):
-        part = g.rollouts(env, spec.episode_length, policy, params, jax.random.fold_in(key, i), num_envs, steps,
-                          g.segment_for(steps), bar)
+        if native:
+            part = g.native_rollouts(env_name, spec.episode_length, policy, params, jax.random.fold_in(key, i),
+                                     num_envs, steps, bar)
+        else:
+            part = g.rollouts(env, spec.episode_length, policy, params, jax.random.fold_in(key, i), num_envs, steps,
+                              g.segment_for(steps), bar)
         parts.append(part)
         info["transitions"] = steps * num_envs
     bar.close()

@@ -95,8 +95,9 @@ ADROIT_KINDS = ("expert", "cloned", "human")
 # ``human``: the size of D4RL's human data (25 demonstrations), recorded from the suite's expert with Gaussian action
 # noise standing in for a human's imprecision (a suite choice: D4RL's demonstrations came from people in VR).
 HUMAN_EPISODES, HUMAN_NOISE = 25, 0.2
-# Gymnasium's MuJoCo v5 locomotion on MJX (proto_brax.envs.gym_v5, the dynamics of Minari's mujoco/* data): the same
-# kinds, from behaviour policies trained on the port (``python -m proto_brax.data.behavior --env hopper-v5``).
+# Gymnasium's MuJoCo v5 locomotion (proto_brax.envs.gym_v5, the dynamics of Minari's mujoco/* data): the same kinds,
+# from behaviour policies trained on gymnasium's own env (``python -m proto_brax.data.native_behavior --env
+# hopper-v5``) and rolled out there (:func:`native_rollouts`), as Farama recorded mujoco/*; the sweeps run the MJX port.
 GYM_V5_ENVS = tuple(f"{env}-v5" for env in LOCOMOTION)
 FAMILIES = ((DATASET_ENVS, KINDS), (ANTMAZE_ENVS, ANTMAZE_KINDS), (ADROIT_ENVS, ADROIT_KINDS),
             (("point",), ("cloned", "human")), (GYM_V5_ENVS, KINDS))
@@ -261,3 +262,40 @@ def rollouts(env, horizon: int, policy: ParamPolicy, params, key, num_envs: int,
 def _segment(env, horizon, policy, params, key, num_envs, steps, state):
     tr, _, _, state = collect(env, horizon, functools.partial(policy, params), key, num_envs, steps, state)
     return tr, state
+
+
+def native_rollouts(env_name: str, horizon: int, policy: ParamPolicy, params, key, num_envs: int, steps: int,
+                    bar=None):
+    """:func:`rollouts` on Gymnasium's own env (a registered ``*-v5`` name): ``num_envs`` native envs stepped in
+    lockstep on the host, one jitted ``policy`` call for all of them per step (its key: ``key`` folded with 1 + the
+    step; env ``j``'s ``k``-th episode resets from ``key`` folded with 0, ``j``, ``k``). The same rows' layout
+    (env-major numpy, the time limit a timeout, each env's last row cut as a timeout unless terminal), so the
+    datasets of ``hopper-v5`` etc. are recorded on Gymnasium's MuJoCo, the dynamics of Farama's ``mujoco/*`` data,
+    at native speed."""
+    from proto_brax.envs.gym_v5 import NativeGymV5
+
+    sims = [NativeGymV5(env_name) for _ in range(num_envs)]
+    reset_key = jax.random.fold_in(key, 0)
+    episode, t = np.zeros(num_envs, int), np.zeros(num_envs, int)
+    obs = np.stack([sim.reset(jax.random.fold_in(jax.random.fold_in(reset_key, j), 0)) for j, sim in enumerate(sims)])
+    act = jax.jit(policy)
+    out = {k: [] for k in ("observations", "actions", "rewards", "next_observations", "terminals", "timeouts")}
+    for i in range(steps):
+        actions = np.asarray(act(params, obs, jax.random.fold_in(key, i + 1)), np.float32)
+        rows = [sim.step(a) for sim, a in zip(sims, actions)]
+        next_obs = np.stack([r[0] for r in rows])
+        terminal = np.array([r[2] for r in rows], np.float32)
+        t += 1
+        timeout = ((t >= horizon) & (terminal == 0)).astype(np.float32)
+        for k, v in (("observations", obs), ("actions", actions), ("rewards", np.array([r[1] for r in rows])),
+                     ("next_observations", next_obs), ("terminals", terminal), ("timeouts", timeout)):
+            out[k].append(np.asarray(v, np.float32))
+        obs = next_obs.copy()  # (not a view: the resets below must not write into the stored next_observations)
+        for j in np.flatnonzero((terminal > 0) | (timeout > 0)):
+            episode[j] += 1
+            t[j] = 0
+            obs[j] = sims[j].reset(jax.random.fold_in(jax.random.fold_in(reset_key, j), episode[j]))
+        if bar is not None:
+            bar.update(num_envs)
+    tr = Transition(**{k: np.stack(v) for k, v in out.items()})  # [steps, envs, ...]
+    return jax.device_get(flatten_env_major(jax.tree.map(jnp.asarray, tr)))
