@@ -388,7 +388,7 @@ def sample_layout(task: str, key: jax.Array, sys_value: jax.Array) -> jax.Array:
         lo, hi = jnp.array([-0.3, 0.25, 0.252]), jnp.array([-0.2, 0.35, 0.35])
         return jax.random.uniform(key, (3,), minval=lo, maxval=hi)
     if task == "hammer":
-        return sys_value.at[2].set(jax.random.uniform(key, (), minval=0.1, maxval=0.25))
+        return jnp.asarray(sys_value).at[2].set(jax.random.uniform(key, (), minval=0.1, maxval=0.25))  # (or numpy)
     raise ValueError(task)
 
 
