@@ -34,6 +34,8 @@ from pathlib import Path
 import _quiet  # noqa: F401  (first: the quiet start)
 import tyro
 
+from proto_brax.analysis.timing import brax_sac_marks, steady_rate
+
 
 @dataclasses.dataclass
 class Args:
@@ -53,40 +55,8 @@ class Args:
 
 def brax_child(args: Args) -> None:
     """Brax's SAC trainer; prints one JSON line: the (env step, wall time) of each evaluation."""
-    import jax
-
-    if not hasattr(jax, "device_put_replicated"):  # removed in jax 0.10; brax 0.14's SAC still calls it
-        def device_put_replicated(x, devices):
-            if len(devices) != 1:
-                raise NotImplementedError("the shim replicates over one device only")
-            return jax.device_put(jax.tree.map(lambda a: jax.numpy.expand_dims(a, 0), x), devices[0])
-
-        jax.device_put_replicated = device_put_replicated
-    import functools
-
-    from brax import envs as brax_envs
-    from brax.training.agents.sac import networks as sac_networks
-    from brax.training.agents.sac import train as sac
-
-    from proto_brax.envs import get_spec
-
-    spec = get_spec(args.env)
-    marks = []
-    sac.train(
-        environment=brax_envs.get_environment(args.env, backend=spec.default_backend),
-        num_timesteps=1000 + args.periods * args.eval_every,
-        episode_length=spec.episode_length, num_envs=1, num_eval_envs=args.eval_episodes, learning_rate=3e-4,
-        discounting=0.99, batch_size=256, num_evals=args.periods + 1, min_replay_size=1000,
-        grad_updates_per_step=1, deterministic_eval=True, max_devices_per_host=1, seed=0,
-        network_factory=functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=(256, 256)),
-        progress_fn=lambda step, metrics: marks.append((int(step), time.time())))
+    marks = brax_sac_marks(args.env, args.periods, args.eval_every, args.eval_episodes)
     print(json.dumps({"marks": marks}), flush=True)
-
-
-def steady_rate(marks: list[tuple[int, float]]) -> float:
-    """Env steps per second between the first and the last of ``marks`` ((env step, wall time) pairs)."""
-    (s0, t0), (s1, t1) = marks[0], marks[-1]
-    return (s1 - s0) / (t1 - t0)
 
 
 def run_brax(args: Args) -> float:
