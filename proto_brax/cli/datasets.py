@@ -316,10 +316,8 @@ def cmd_references(a: References) -> dict:
     spec = envs.get_spec(a.env)
     env = envs.make_env(a.env)
     expert, _ = g.pick_expert_medium(g.list_snapshots(a.env))  # the expert is the final snapshot either way
-    nets, params = g.load_snapshot_actor(expert, env)
-    import jax.numpy as jnp
-
-    det = lambda obs, k: jnp.tanh(nets.actor.apply(params, obs)[0])  # noqa: E731
+    mean, params = g.snapshot_policy(expert, env, sampled=False)
+    det = lambda obs, k: mean(params, obs, k)  # noqa: E731
     out = {}
     for label, pol in (("random", g.uniform_policy(env.action_size)), ("expert", det)):
         episodes = jax.jit(lambda k, pol=pol: run_episodes(env, spec.episode_length, pol, k, a.episodes))

@@ -218,13 +218,13 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     if size % num_envs:
         raise ValueError(f"size ({size}) must be a multiple of num_envs ({num_envs}).")
     spec = envs.get_spec(env_name)
-    native = env_name in g.GYM_V5_ENVS  # recorded on gymnasium's own env, as Farama's mujoco/* data
-    if native:
-        from proto_brax.envs.gym_v5 import NativeGymV5
+    # Recorded on the env's native twin where it has one (generate.native_rollouts), not on MJX: gymnasium's own v5
+    # envs (Farama's mujoco/* data came from them) and Adroit's capsule model (MJX steps a hand ~100 times a second
+    # here); the sweeps still run MJX.
+    from proto_brax.envs.native import NATIVE_ENVS, native_env
 
-        env = NativeGymV5(env_name)  # (its sizes, for the snapshots' actors)
-    else:
-        env = envs.make_env(env_name)
+    native = env_name in NATIVE_ENVS
+    env = native_env(env_name) if native else envs.make_env(env_name)
     key = g.dataset_key(seed, kind)
     meta = {"name": name, "env": env_name, "backend": "native" if native else spec.default_backend, "kind": kind,
             "size": size, "seed": seed, "num_envs": num_envs, "episode_length": spec.episode_length,
@@ -243,9 +243,10 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
                      else "expert eval / 3")}
 
         def snap_policy(s):
-            nets, params = g.load_snapshot_actor(s, env)
-            return (f"step_{s.step}", g.stochastic_policy(nets), params,
-                    {"step": s.step, "eval_return": s.eval_return, "params_hash": g.params_hash(params)})
+            policy, params = g.snapshot_policy(s, env)
+            return (f"step_{s.step}", policy, params,
+                    {"step": s.step, "eval_return": s.eval_return, "params_hash": g.params_hash(params),
+                     **({"policy_class": s.metadata["policy_class"]} if "policy_class" in s.metadata else {})})
 
     uniform = ("uniform", g.uniform_param_policy(env.action_size), None, {"step": 0})
     if kind == "random":
@@ -329,10 +330,16 @@ def make_cloned(name: str, size: int, seed: int = 0, num_envs: int = 100, behavi
     pre = make_pretrain(PretrainConfig(algo="bc", env=env_name, steps=bc_steps, log_every=log_every))
     state, metrics, bc_returns = run_pretrain(pre, OfflineHParams.create(), [seed], jax.tree.map(jnp.asarray, demo))
     actor = jax.tree.map(lambda x: x[0], state.actor)
-    env, spec = envs.make_env(env_name), envs.get_spec(env_name)
+    spec = envs.get_spec(env_name)
     steps = size // 2 // num_envs
-    cloned = g.rollouts(env, spec.episode_length, g.stochastic_policy(pre.nets), actor, g.dataset_key(seed, "cloned"),
-                        num_envs, steps, g.segment_for(steps))
+    from proto_brax.envs.native import NATIVE_ENVS
+
+    if env_name in NATIVE_ENVS:
+        cloned = g.native_rollouts(env_name, spec.episode_length, g.stochastic_policy(pre.nets), actor,
+                                   g.dataset_key(seed, "cloned"), num_envs, steps)
+    else:
+        cloned = g.rollouts(envs.make_env(env_name), spec.episode_length, g.stochastic_policy(pre.nets), actor,
+                            g.dataset_key(seed, "cloned"), num_envs, steps, g.segment_for(steps))
     data = jax.tree.map(lambda a, b: np.concatenate([a, b]).astype(np.float32), expert, cloned)
     meta = {**{k: emeta[k] for k in ("env", "backend", "seed", "num_envs", "episode_length", "version",
                                      "expert_snapshot")},

@@ -87,9 +87,9 @@ def default_size(env: str, kind: str | None = None) -> int:
 # AntMaze (proto_brax.data.antmaze_data): D4RL's play / diverse navigation data in each maze.
 ANTMAZE_ENVS = ("antmaze-umaze", "antmaze-medium", "antmaze-large")
 ANTMAZE_KINDS = ("play", "diverse")
-# Adroit: D4RL's expert and cloned data, made from the suite's own expert policy (D4RL's human demonstrations cannot
-# be recorded here: ``--dataset D4RL/pen/human-v2`` loads them from a user's Minari cache). point-cloned is the same
-# recipe on the test task.
+# Adroit: D4RL's expert and cloned data, made from D4RL's own DAPG expert (``data.dapg``) on the capsule model (D4RL's
+# human demonstrations cannot be recorded here: ``--dataset D4RL/pen/human-v2`` loads them from a user's Minari
+# cache). point-cloned is the same recipe on the test task.
 ADROIT_ENVS = ("pen", "door", "hammer")
 ADROIT_KINDS = ("expert", "cloned", "human")
 # ``human``: the size of D4RL's human data (25 demonstrations), recorded from the suite's expert with Gaussian action
@@ -185,8 +185,8 @@ def behavior_returns(env, horizon: int, snaps: list[Snapshot], episodes: int, se
     """Yield (snapshot, episode returns [episodes]) of each snapshot's stochastic policy, one compiled program for
     all (the parameters are an argument)."""
     for snap in snaps:
-        nets, params = load_snapshot_actor(snap, env)
-        yield snap, np.asarray(_episode_returns(env, horizon, stochastic_policy(nets), params,
+        policy, params = snapshot_policy(snap, env)
+        yield snap, np.asarray(_episode_returns(env, horizon, policy, params,
                                                 jax.random.PRNGKey(seed), episodes))
 
 
@@ -195,6 +195,25 @@ def _episode_returns(env, horizon, policy, params, key, episodes):
     from proto_brax.train.evaluate import run_episodes
 
     return run_episodes(env, horizon, functools.partial(policy, params), key, episodes)
+
+
+def snapshot_policy(snap: Snapshot, env, sampled: bool = True) -> tuple[ParamPolicy, object]:
+    """(policy, params) of a behaviour snapshot: the suite's SAC actor (tanh-Gaussian samples, or tanh of the mean)
+    or a DAPG expert (``data.dapg``: Gaussian samples or the mean, clipped to the action box)."""
+    if snap.metadata.get("policy_class") == "dapg_mlp":
+        from proto_brax.checkpoints import restore
+        from proto_brax.data import dapg
+
+        params, _ = restore(snap.path, dapg.template(snap.metadata))
+        return dapg.param_policy(snap.metadata["dapg"]["nonlinearity"], sampled), params
+    nets, params = load_snapshot_actor(snap, env)
+    return (stochastic_policy(nets) if sampled else mean_policy(nets)), params
+
+
+@functools.lru_cache(maxsize=None)
+def mean_policy(nets) -> ParamPolicy:
+    """The SAC actor's deterministic action, tanh of its mean."""
+    return lambda params, obs, key: jnp.tanh(nets.actor.apply(params, obs)[0])
 
 
 def load_snapshot_actor(snap: Snapshot, env):
@@ -266,15 +285,15 @@ def _segment(env, horizon, policy, params, key, num_envs, steps, state):
 
 def native_rollouts(env_name: str, horizon: int, policy: ParamPolicy, params, key, num_envs: int, steps: int,
                     bar=None):
-    """:func:`rollouts` on Gymnasium's own env (a registered ``*-v5`` name): ``num_envs`` native envs stepped in
-    lockstep on the host, one jitted ``policy`` call for all of them per step (its key: ``key`` folded with 1 + the
-    step; env ``j``'s ``k``-th episode resets from ``key`` folded with 0, ``j``, ``k``). The same rows' layout
-    (env-major numpy, the time limit a timeout, each env's last row cut as a timeout unless terminal), so the
-    datasets of ``hopper-v5`` etc. are recorded on Gymnasium's MuJoCo, the dynamics of Farama's ``mujoco/*`` data,
-    at native speed."""
-    from proto_brax.envs.gym_v5 import NativeGymV5
+    """:func:`rollouts` on the env's native twin (``envs.native_env``: gymnasium's own v5 env, Adroit's capsule model
+    on MuJoCo): ``num_envs`` native envs stepped in lockstep on the host, one jitted ``policy`` call for all of them
+    per step (its key: ``key`` folded with 1 + the step; env ``j``'s ``k``-th episode resets from ``key`` folded with
+    0, ``j``, ``k``). The same rows' layout (env-major numpy, the time limit a timeout, each env's last row cut as a
+    timeout unless terminal), so the v5 datasets are recorded on Gymnasium's MuJoCo, the dynamics of Farama's
+    ``mujoco/*`` data, and the Adroit ones at native speed (MJX steps a hand ~100 times a second here)."""
+    from proto_brax.envs.native import native_env
 
-    sims = [NativeGymV5(env_name) for _ in range(num_envs)]
+    sims = [native_env(env_name) for _ in range(num_envs)]
     reset_key = jax.random.fold_in(key, 0)
     episode, t = np.zeros(num_envs, int), np.zeros(num_envs, int)
     obs = np.stack([sim.reset(jax.random.fold_in(jax.random.fold_in(reset_key, j), 0)) for j, sim in enumerate(sims)])

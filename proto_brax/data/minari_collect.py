@@ -36,7 +36,7 @@ from proto_brax.data.minari_io import METADATA_KEY, MINARI_ENV, check_id, minari
 POLICIES = ("random", "medium", "expert")  # or a snapshot step
 
 
-def behavior_policy(env: str, policy: str, observation_size: int, action_size: int, seed: int,
+def behavior_policy(env: str, policy: str, action_size: int, seed: int,
                     behavior_root: Path | None = None) -> tuple[Callable[[np.ndarray, int], np.ndarray], dict]:
     """(act(obs, t) -> action, record): ``policy`` as a host function of one observation and the step index, its
     randomness seeded from ``seed`` (uniform actions from a NumPy generator; a snapshot's samples from a JAX key
@@ -64,20 +64,18 @@ def behavior_policy(env: str, policy: str, observation_size: int, action_size: i
                              f"{', '.join(str(s.step) for s in snaps)}.")
         snap = found[0]
 
-    class _Sizes:  # load_snapshot_actor needs only the env's sizes
-        pass
+    from proto_brax.envs.native import native_env
 
-    sizes = _Sizes()
-    sizes.observation_size, sizes.action_size = observation_size, action_size
-    nets, params = g.load_snapshot_actor(snap, sizes)
+    sampler, params = g.snapshot_policy(snap, native_env(env))  # (the native twin: its sizes)
     key = jax.random.PRNGKey(seed)
-    sample = jax.jit(lambda obs, k: g.stochastic_policy(nets)(params, obs[None], k)[0])
+    sample = jax.jit(lambda obs, k: sampler(params, obs[None], k)[0])
 
     def act(obs: np.ndarray, t: int) -> np.ndarray:
         return np.asarray(sample(np.asarray(obs, np.float32), jax.random.fold_in(key, t)))
 
     record = {"policy": policy, "snapshot": str(snap.path), "snapshot_step": snap.step,
-              "snapshot_eval_return": snap.eval_return, "sampling": "stochastic (tanh-Gaussian samples)"}
+              "snapshot_eval_return": snap.eval_return,
+              "sampling": "stochastic (the snapshot's samples: tanh-Gaussian for SAC actors)"}
     return act, record
 
 
@@ -110,8 +108,7 @@ def collect(env: str, dataset_id: str, steps: int, policy: str = "medium", seed:
                               "(collect never replaces a dataset).")
     spec = envs.get_spec(env)
     gym_env = gym.make(gym_v5.get_task(env.removesuffix("-v5")).gym_id)  # with its TimeLimit: truncations
-    act, record = behavior_policy(env, policy, int(gym_env.observation_space.shape[0]),
-                                  int(gym_env.action_space.shape[0]), seed, behavior_root)
+    act, record = behavior_policy(env, policy, int(gym_env.action_space.shape[0]), seed, behavior_root)
     rng = np.random.default_rng(seed)
     root.mkdir(parents=True, exist_ok=True)
     t0 = time.time()

@@ -44,8 +44,7 @@ from proto_brax.config import FinetuneConfig
 from proto_brax.data.behavior import SAC_SCRATCH, snapshot_dir
 from proto_brax.data.dataset import Transition
 from proto_brax.data.replay import ReplayBuffer, replay_init, replay_insert, replay_sample
-from proto_brax.envs.adroit_native import NativeAdroit
-from proto_brax.envs.gym_v5 import NativeGymV5
+from proto_brax.envs.native import native_env
 from proto_brax.networks import NetworkConfig, make_networks
 
 
@@ -117,11 +116,6 @@ def make_trainer(args: Args):
         return Trainer(learner=learner, buffer=buffer, key=key, step=trainer.step + 1), m
 
     return cfg, hp, init, act, learn
-
-
-def native_env(name: str):
-    """The native env of a registered name: Adroit on its capsule model, or gymnasium's own v5 env."""
-    return NativeGymV5(name) if name.endswith("-v5") else NativeAdroit(name)
 
 
 def evaluate(env, act, learner: Learner, episodes: int, key: jax.Array) -> dict:

@@ -210,6 +210,7 @@ def make_env(name: str, backend: str | None = None) -> Env:
     return brax_envs.get_environment(name, backend=backend, **dict(spec.kwargs))
 
 
+
 # One XLA thread (XLA's CPU client otherwise runs an Eigen pool and intra-op threads): one such process per core does
 # more updates per second in total than one multi-threaded process on the 2-core machine (FACTS.md), and the MJX speed
 # checks compare against native MuJoCo's one thread.
