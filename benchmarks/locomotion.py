@@ -1,6 +1,8 @@
-"""Reduced-scale reproduction of the PROTO paper on Brax locomotion: every (dataset, method) sweep, resumable.
+"""Reduced-scale reproduction of the PROTO paper on Brax locomotion (and Adroit, AntMaze with ``--domain``): every
+(dataset, method) sweep, resumable.
 
     python benchmarks/locomotion.py run                     # all pending sweeps, in order, each resumable
+    python benchmarks/locomotion.py status --domain adroit  # pen/door/hammer-human: PROTO, Frozen, direct, IQL
     python benchmarks/locomotion.py run --datasets hopper-medium --methods proto-sac frozen
     python benchmarks/locomotion.py run --methods ablate-tau ablate-eta   # the appendix's τ and η ablations
     python benchmarks/locomotion.py status                  # what is done, running or missing
@@ -37,7 +39,7 @@ import tyro
 
 from proto_brax.agents.registry import METHODS
 from proto_brax.analysis import locomotion_plan as plan
-from proto_brax.analysis.locomotion_plan import ABLATIONS, DATASETS, PAPER_METHODS
+from proto_brax.analysis.locomotion_plan import ABLATIONS
 from proto_brax.files import nan_for_null
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,19 +49,26 @@ PRETRAINED = ROOT / "checkpoints" / "pretrained"
 @dataclasses.dataclass
 class Args:
     action: tyro.conf.Positional[Literal["run", "status"]] = "run"
-    datasets: tuple[str, ...] = DATASETS
-    methods: tuple[str, ...] = PAPER_METHODS + tuple(ABLATIONS)
+    domain: Literal["locomotion", "adroit", "antmaze"] = "locomotion"
+    """Which benchmark (``locomotion_plan.DOMAINS``): its datasets, methods, preset, budget and results folder."""
+    datasets: tuple[str, ...] | None = None
+    """Default: the domain's (locomotion: the 12 Brax datasets)."""
+    methods: tuple[str, ...] | None = None
+    """Default: the domain's (locomotion: the paper's methods and the ablations)."""
     ablation_datasets: tuple[str, ...] = ("hopper-medium", "walker2d-medium", "halfcheetah-medium")
     """Where ``ablate-tau`` / ``ablate-eta`` run (the paper's appendix ablates on three datasets)."""
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
-    steps: int = 50_000  # online budget per run (paper: 10⁶); stated in every summary
-    eval_every: int = 2_500
-    """Evaluation period (paper: 5k of 10⁶). At the reduced budget, 2.5k puts two evaluations (2.5k, 5k) inside the
-    first 10% of the run, where the initial drop is measured."""
-    runs: Path = Path(os.environ.get("PROTO_BRAX_RUNS", Path.home() / ".cache" / "proto_brax" / "runs")) / "locomotion"
-    """Working sweeps (resume state): outside the work tree, so that a later checkout on the same machine resumes them
-    ($PROTO_BRAX_RUNS, default ~/.cache/proto_brax/runs)."""
-    results: Path = ROOT / "benchmarks" / "results" / "locomotion"
+    steps: int | None = None
+    """Online budget per run (paper: 10⁶), stated in every summary. Default: the domain's (50k)."""
+    eval_every: int | None = None
+    """Evaluation period (paper: 5k of 10⁶). Default: the domain's. Locomotion's 2.5k puts two evaluations (2.5k,
+    5k) inside the first 10% of the run, where the initial drop is measured; Adroit's and AntMaze's 5k halve the
+    MJX evaluations, which cost there what the updates do."""
+    runs: Path | None = None
+    """Working sweeps (resume state), default $PROTO_BRAX_RUNS/DOMAIN (~/.cache/proto_brax/runs/DOMAIN): outside the
+    work tree, so that a later checkout on the same machine resumes them."""
+    results: Path | None = None
+    """Default: benchmarks/results/DOMAIN."""
     single_core: bool = False
     """Each sweep on one CPU device with one XLA thread (``--devices 1``, ``envs.single_thread_xla_flags``): for two
     runners side by side on a 2-core machine, where two single-threaded processes do more updates per second in total
@@ -67,28 +76,39 @@ class Args:
     it started with (its state's padding follows the device count)."""
 
 
+def resolve(args: Args) -> Args:
+    """The domain's defaults for what the command line left out."""
+    d = plan.DOMAINS[args.domain]
+    runs_root = Path(os.environ.get("PROTO_BRAX_RUNS", Path.home() / ".cache" / "proto_brax" / "runs"))
+    return dataclasses.replace(args, datasets=args.datasets or d.datasets, methods=args.methods or d.methods,
+                               steps=args.steps or d.steps, eval_every=args.eval_every or d.eval_every,
+                               runs=args.runs or runs_root / d.name,
+                               results=args.results or ROOT / "benchmarks" / "results" / d.name)
+
+
 def main(args: Args) -> None:
+    args, domain = resolve(args), plan.DOMAINS[args.domain]
     unknown = [m for m in args.methods if m not in METHODS and m not in ABLATIONS]
     if unknown:
         raise SystemExit(f"unknown --methods {unknown}: choose from {sorted(METHODS)} or {sorted(ABLATIONS)}.")
     for dataset, method in plan.planned_sweeps(args.datasets, args.methods, args.ablation_datasets):
         if args.action == "status":
-            state = plan.sweep_status(dataset, method, args.runs, args.results, PRETRAINED)
+            state = plan.sweep_status(dataset, method, args.runs, args.results, PRETRAINED, domain)
             print(f"{dataset:28s} {method:12s} {state}")
             continue
         out, dst = args.runs / dataset / method, args.results / dataset / method
         if (dst / "summary.json").exists():
             continue
-        if need := plan.missing_bundle(dataset, method, PRETRAINED):
+        if need := plan.missing_bundle(dataset, method, PRETRAINED, domain):
             print(f"skip {dataset} {method}: no bundle ({need})", flush=True)
             continue
-        if (src := plan.shared_sweep(dataset, method, args.results)) is not None:
+        if (src := plan.shared_sweep(dataset, method, args.results, domain)) is not None:
             plan.copy_shared(src, dst)
             print(f"{dataset} {method}: the same runs as {src.parent.name} (trains on no dataset)", flush=True)
             continue
         if not (out / "summary.json").exists():  # else finished but not published (the runner was stopped)
             cmd = plan.sweep_command(dataset, method, out, args.seeds, args.steps, args.eval_every, args.single_core,
-                                     resume=(out / "config.json").exists())
+                                     resume=(out / "config.json").exists(), domain=domain)
             print(f"[{time.strftime('%H:%M:%S')}] {' '.join(cmd[1:])}", flush=True)
             if subprocess.run(cmd, cwd=ROOT, env=plan.sweep_env(args.single_core)).returncode != 0:
                 print(f"FAILED: {dataset} {method}", flush=True)

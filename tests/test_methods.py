@@ -438,3 +438,14 @@ def test_locomotion_runner_commands_parse(tmp_path):
     assert sweep.parse_args(one[3:]).devices == 1
     assert "--xla_cpu_multi_thread_eigen=false" in plan.sweep_env(single_core=True)["XLA_FLAGS"]
     assert sweep.parse_args(command("hopper-medium", "direct", resume=False)[3:]).devices is None
+    # Adroit and AntMaze (--domain): their preset, env and dataset; α over the paper's 10⁶ horizon, not the budget
+    pen = sweep.parse_args(plan.sweep_command("pen-human", "frozen", tmp_path / "p", (0, 1), 50_000, 5_000, False,
+                                              False, domain=plan.ADROIT)[3:])
+    assert (pen.env, pen.dataset, pen.algo, pen.tau, pen.alpha0) == ("pen", "pen-human", "frozen", (0.0,), (2.0,))
+    assert pen.anneal_horizon == 1e6 and pen.steps == 50_000 and pen.eval_every == 5_000 and not pen.value_reg_backup
+    maze = sweep.parse_args(plan.sweep_command("antmaze-large-diverse", "proto-sac", tmp_path / "m", (0,), 50_000,
+                                               5_000, False, False, domain=plan.ANTMAZE)[3:])
+    assert (maze.env, maze.dataset, maze.eval_episodes, maze.anneal_horizon) == ("antmaze-large", "antmaze-large-"
+                                                                                "diverse", 20, 1e6)
+    assert maze.dataset_size == 1_000_000 and maze.alpha0 == (0.5,)
+    assert "--hp expectile 0.9 temperature 10" in plan.missing_bundle("antmaze-umaze", "iql", tmp_path, plan.ANTMAZE)

@@ -1,9 +1,11 @@
-"""The published locomotion benchmark: its datasets, its methods and the paper's ablations (appendix), run by
-``benchmarks/locomotion.py`` and reported by ``proto_brax.analysis.results_md``; the runner's queue of sweeps, each
-one's state (done, needs a bundle, shared, started, pending), its command line and its publication."""
+"""The published benchmarks: locomotion (its datasets, its methods and the paper's ablations, appendix), Adroit and
+AntMaze (``DOMAINS``), run by ``benchmarks/locomotion.py`` and reported by ``proto_brax.analysis.results_md``; the
+runner's queue of sweeps, each one's state (done, needs a bundle, shared, started, pending), its command line and its
+publication."""
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import os
 import shutil
@@ -24,6 +26,49 @@ TAU0, ETA0 = PRESETS[PRESET].fields["tau"][0], PRESETS[PRESET].fields["eta"][0]
 ABLATIONS = {"ablate-tau": ("--tau", (0.5 * TAU0, 2 * TAU0)), "ablate-eta": ("--eta", (0.8, 1.0))}
 
 
+@dataclasses.dataclass(frozen=True)
+class Domain:
+    """One benchmark the runner (``benchmarks/locomotion.py --domain``) queues: its datasets and methods, the preset
+    its sweeps start from and the reduced online budget they run at."""
+
+    name: str  # results/<name>/DATASET/METHOD, runs/<name>/DATASET/METHOD
+    datasets: tuple[str, ...]
+    methods: tuple[str, ...]
+    preset: str
+    steps: int  # online budget per run (the paper: 10⁶)
+    eval_every: int
+    eval_episodes: int | None = None  # None: the preset's
+    anneal_over_budget: bool = True
+    """True: α annealed over the budget, the same fraction of the run as the paper's (locomotion). False: the preset's
+    horizon, the paper's 10⁶ (AntMaze, Adroit: τ 5e-5 moves π̄ slowly, and a short run would anneal α away)."""
+    dataset_size: int | None = None  # --dataset-size (None: the registered default)
+    bundle_flags: dict[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
+    """Per bundle kind, the pretraining flags of the domain (the PROTO paper's EQL; the IQL paper's IQL)."""
+
+
+LOCOMOTION = Domain("locomotion", DATASETS, PAPER_METHODS + tuple(ABLATIONS), PRESET, 50_000, 2_500,
+                    dataset_size=1_000_000)
+ADROIT = Domain("adroit", tuple(f"{t}-human" for t in ("pen", "door", "hammer")),
+                ("proto-sac", "frozen", "direct", "iql"), "paper-adroit", 50_000, 5_000, anneal_over_budget=False,
+                bundle_flags={"eql": ("--steps", "100000"),  # IQL's Adroit values: expectile 0.7, β 0.5
+                              "iql": ("--steps", "100000", "--hp", "temperature", "0.5")})
+ANTMAZE = Domain("antmaze", tuple(f"antmaze-{m}" for m in ("umaze-diverse", "medium-play", "medium-diverse",
+                                                             "large-diverse", "umaze", "large-play")),
+                 ("proto-sac", "frozen", "direct", "iql"), "paper-antmaze", 50_000, 5_000, eval_episodes=20,
+                 anneal_over_budget=False, dataset_size=1_000_000,
+                 bundle_flags={"eql": ("--steps", "200000", "--hp", "alpha", "0.5"),  # IQL's AntMaze: 0.9, β 10
+                               "iql": ("--steps", "200000", "--hp", "expectile", "0.9", "temperature", "10")})
+DOMAINS = {d.name: d for d in (LOCOMOTION, ADROIT, ANTMAZE)}
+
+
+def env_of(dataset: str) -> str:
+    """The env a registered dataset was recorded on (``hopper-medium`` -> ``hopper``, ``antmaze-umaze-diverse`` ->
+    ``antmaze-umaze``, ``pen-human`` -> ``pen``)."""
+    from proto_brax.data.generate import parse_name
+
+    return parse_name(dataset)[0]
+
+
 def method_of(name: str) -> Method:
     """The sweep method a runner method name stands for (an ablation is a PROTO-SAC sweep)."""
     return METHODS["proto-sac" if name in ABLATIONS else name]
@@ -36,20 +81,25 @@ def planned_sweeps(datasets: tuple[str, ...], methods: tuple[str, ...],
 
 
 def sweep_command(dataset: str, method: str, out: Path, seeds: tuple[int, ...], steps: int, eval_every: int,
-                  single_core: bool, resume: bool) -> list[str]:
-    """``python -m proto_brax.sweep`` of one (dataset, method) into ``out``: the preset, the online budget ``steps``
-    with α annealed over all of it, the ablation's two values, the full dataset (unless the method trains on none)."""
-    env = dataset.split("-")[0]
+                  single_core: bool, resume: bool, domain: Domain = LOCOMOTION) -> list[str]:
+    """``python -m proto_brax.sweep`` of one (dataset, method) into ``out``: the domain's preset, the online budget
+    ``steps`` (α annealed over all of it where the domain says so), the ablation's two values, the dataset (unless the
+    method trains on none)."""
     m = method_of(method)
-    cmd = [sys.executable, "-m", "proto_brax.sweep", "--preset", PRESET, "--algo", m.name,
-           "--env", env, "--seeds", *map(str, seeds), "--steps", str(steps),
-           "--eval-every", str(eval_every), "--anneal-horizon", str(float(steps)),
-           "--out", str(out)]
+    cmd = [sys.executable, "-m", "proto_brax.sweep", "--preset", domain.preset, "--algo", m.name,
+           "--env", env_of(dataset), "--seeds", *map(str, seeds), "--steps", str(steps),
+           "--eval-every", str(eval_every), "--out", str(out)]
+    if domain.anneal_over_budget:
+        cmd += ["--anneal-horizon", str(float(steps))]
+    if domain.eval_episodes is not None:
+        cmd += ["--eval-episodes", str(domain.eval_episodes)]
     if method in ABLATIONS:
         flag, values = ABLATIONS[method]
         cmd += [flag, *map(str, values)]
     if m.uses_dataset:
-        cmd += ["--dataset", dataset, "--dataset-size", "1000000"]
+        cmd += ["--dataset", dataset]
+        if domain.dataset_size is not None:
+            cmd += ["--dataset-size", str(domain.dataset_size)]
     if single_core:
         cmd += ["--devices", "1"]
     return cmd + (["--resume"] if resume else [])
@@ -67,7 +117,7 @@ def sweep_env(single_core: bool) -> dict[str, str]:
     return env
 
 
-def missing_bundle(dataset: str, method: str, pretrained: Path) -> str | None:
+def missing_bundle(dataset: str, method: str, pretrained: Path, domain: Domain = LOCOMOTION) -> str | None:
     """The command that makes the pretrained bundle ``method`` starts from on ``dataset`` when ``pretrained`` (the
     repository's ``checkpoints/pretrained``) lacks it; None when it is there or the method needs none."""
     m = method_of(method)
@@ -76,8 +126,9 @@ def missing_bundle(dataset: str, method: str, pretrained: Path) -> str | None:
     kind = m.bundles[0]  # the bundle kind that --checkpoint auto picks
     if (pretrained / dataset / (kind + m.bundle_suffix) / "metadata.json").exists():
         return None
-    extra = "".join(f" {f}" for f in pretrain_flags(m.defaults.get("policy", "tanh_gaussian"),
-                                                     m.defaults.get("pretrain_hp")))
+    extra = "".join(f" {f}" for f in (*domain.bundle_flags.get(kind, ()),
+                                      *pretrain_flags(m.defaults.get("policy", "tanh_gaussian"),
+                                                      m.defaults.get("pretrain_hp"))))
     return (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}{extra} --out "
             f"checkpoints/pretrained/{dataset}/{kind + m.bundle_suffix}")
 
@@ -96,14 +147,14 @@ def publish(src: Path, dst: Path) -> None:
     copy_atomic(src / "summary.json", dst / "summary.json")
 
 
-def shared_sweep(dataset: str, method: str, results: Path) -> Path | None:
+def shared_sweep(dataset: str, method: str, results: Path, domain: Domain = LOCOMOTION) -> Path | None:
     """A published sweep (under ``results``) of a dataset-free method on another dataset of the same env, which this
     dataset shares."""
     if method not in METHODS or METHODS[method].uses_dataset:
         return None
-    env = dataset.split("-")[0]
-    found = [results / d / method for d in DATASETS
-             if d != dataset and d.split("-")[0] == env and (results / d / method / "summary.json").exists()]
+    env = env_of(dataset)
+    found = [results / d / method for d in domain.datasets
+             if d != dataset and env_of(d) == env and (results / d / method / "summary.json").exists()]
     return found[0] if found else None
 
 
@@ -117,14 +168,15 @@ def copy_shared(src: Path, dst: Path) -> None:
     tmp.replace(dst)
 
 
-def sweep_status(dataset: str, method: str, runs: Path, results: Path, pretrained: Path) -> str:
+def sweep_status(dataset: str, method: str, runs: Path, results: Path, pretrained: Path,
+                 domain: Domain = LOCOMOTION) -> str:
     """What ``locomotion.py status`` says of one sweep: done (published), needs bundle (with the command that makes
     it), shared (a dataset-free method's sweep on another dataset, copied on run), started (a working directory under
     ``runs``) or pending."""
     if (results / dataset / method / "summary.json").exists():
         return "done"
-    if need := missing_bundle(dataset, method, pretrained):
+    if need := missing_bundle(dataset, method, pretrained, domain):
         return "needs bundle: " + need
-    if (shared := shared_sweep(dataset, method, results)) is not None:
+    if (shared := shared_sweep(dataset, method, results, domain)) is not None:
         return f"shared: copies {shared.parent.name}'s on run"
     return "started" if (runs / dataset / method).exists() else "pending"
