@@ -258,3 +258,20 @@ def test_critic_layer_norm_rule_is_the_registrys():
     cfg = finetune_config(sweep.SweepArgs(env="halfcheetah", dataset="none", checkpoint="none",
                                                  critic_layer_norm=True))
     assert cfg.net.critic_layer_norm is True
+
+
+def test_default_dataset_size_never_exceeds_the_registered_set():
+    """The default 10⁵ rows is capped at a registered dataset's own size (pen-human: 25 episodes of 100 steps), so
+    `--dataset pen-human` loads the registered human set instead of building one 40× its size; what config.json
+    records for the other defaults is unchanged (10⁵), so sweeps started before resume."""
+    from proto_brax.experiment.args import SweepArgs
+    from proto_brax.experiment.plan import resolve_dataset, resolve_dataset_size
+
+    def size(**kw):
+        args = SweepArgs(**kw)
+        return resolve_dataset_size(args, resolve_dataset(args))
+
+    assert size(env="pen", dataset="pen-human") == 2_500 and size(env="door", dataset="door-human") == 5_000
+    assert size(env="hopper", dataset="hopper-medium") == 100_000 and size(env="hopper") == 100_000  # (auto)
+    assert size(env="hopper", dataset="none") == 100_000 and size(env="pen", dataset="x.npz") == 100_000
+    assert size(env="pen", dataset="pen-human", dataset_size=5_000) == 5_000  # an explicit size is the user's

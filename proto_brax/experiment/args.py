@@ -76,8 +76,9 @@ class SweepArgs:
     dataset: str | None = "auto"
     """Offline data: a registered name (e.g. hopper-medium; built into the cache if missing), a file (our .npz, or a
     D4RL-format .hdf5), 'auto' = ENV-medium (AntMaze: ENV-diverse), or 'none' (online data only)."""
-    dataset_size: int | None = 100_000
-    """Transitions of a registered dataset (the paper's D4RL sets have 10⁶: pass 1000000); built if missing."""
+    dataset_size: int | None = None
+    """Transitions of a registered dataset, built if missing. Default: 10⁵, or the registered size where that is
+    smaller (the human sets: 25 episodes). The paper's D4RL sets have 10⁶: pass 1000000."""
     checkpoint: str = "auto"
     """Pretrained bundle (python -m proto_brax.pretrain) to finetune from (π₀, Q₀, V₀): a path; 'auto' = the committed
     checkpoints/pretrained/DATASET/KIND for the method's bundle kind (eql for PROTO; iql for iql/pex; bc for proto-bc

@@ -52,6 +52,21 @@ def resolve_dataset(args: SweepArgs) -> str | None:
     return args.dataset
 
 
+DEFAULT_DATASET_SIZE = 100_000  # a sweep's default rows of a registered dataset (the registered size where smaller)
+
+
+def resolve_dataset_size(args: SweepArgs, dataset_name: str | None) -> int:
+    """--dataset-size, else 10⁵ capped at a registered dataset's own size (a default must not build a "human" set 40×
+    larger than D4RL's 25 episodes). A file or Minari id keeps its own rows whatever this says."""
+    from proto_brax.data.generate import dataset_names, default_size, parse_name
+
+    if args.dataset_size is not None:
+        return args.dataset_size
+    if dataset_name in dataset_names():
+        return min(DEFAULT_DATASET_SIZE, default_size(*parse_name(dataset_name)))
+    return DEFAULT_DATASET_SIZE
+
+
 def resolve_checkpoint(args: SweepArgs) -> Path | None:
     """'none' -> None; 'auto' -> the committed bundle of the dataset for the method's bundle kind; else the path.
 
@@ -205,6 +220,8 @@ def plan_sweep(args: SweepArgs) -> Plan:
     from proto_brax.train.grid import make_grid
 
     validate_args(args)
+    # the default size resolved (and recorded in config.json as before: 10⁵ unless the registered set is smaller)
+    args = dataclasses.replace(args, dataset_size=resolve_dataset_size(args, resolve_dataset(args)))
     cfg = finetune_config(args)
     method = get_method(args.algo)
     axes = grid_axes(args)
