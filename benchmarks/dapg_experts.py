@@ -1,11 +1,12 @@
-"""D4RL's DAPG experts on the suite's capsule model beside gymnasium-robotics' original cylinder model (issue 36):
-what the MJX-compatible capsules cost the experts that the Adroit datasets come from.
+"""D4RL's DAPG experts on the suite's capsule model, on cylinders as convex prisms, and on gymnasium-robotics' original
+cylinder model (issue 36): what each MJX-compatible stand-in for the cylinders costs the experts the Adroit data come
+from.
 
     python benchmarks/dapg_experts.py                 # pen, door, hammer; 100 episodes each way
     python benchmarks/dapg_experts.py --episodes 5    # a quick look
 
 Each task's snapshot (``checkpoints/behavior/TASK/step_0000000``, written by ``python -m proto_brax.data.dapg``) is run
-with sampled and with mean actions on both models, natively, over D4RL's horizon (pen 100, door and hammer 200 steps),
+with sampled and with mean actions on each model, natively, over D4RL's horizon (pen 100, door and hammer 200 steps),
 with D4RL's success rule. Writes ``benchmarks/results/dapg_experts.json``.
 """
 
@@ -27,6 +28,8 @@ from proto_brax.files import write_json_atomic
 @dataclasses.dataclass
 class Args:
     tasks: tuple[str, ...] = ("pen", "door", "hammer")
+    models: tuple[str, ...] = ("capsule", "prism", "original")
+    """capsule: the MJX env's model; prism: cylinders as convex 16-gon prisms; original: gymnasium-robotics'."""
     episodes: int = 100
     seed: int = 0
     out: Path = Path(__file__).resolve().parent / "results" / "dapg_experts.json"
@@ -43,7 +46,7 @@ def main(args: Args) -> dict:
         params, _ = restore(snap.path, dapg.template(snap.metadata))
         nonlinearity = snap.metadata["dapg"]["nonlinearity"]
         rows = {}
-        for model in ("capsule", "original"):
+        for model in args.models:
             for sampled in (True, False):
                 r = dapg.evaluate(task, params, nonlinearity, args.episodes, args.seed, sampled, model)
                 rows[f"{model}/{'sampled' if sampled else 'mean'}"] = r

@@ -189,3 +189,32 @@ def test_mjx_env_matches_native_capsule_model():
         # steps. The old 2e-3 held for no step past the first.
         np.testing.assert_allclose(o, ref_obs, atol=1e-2)
         assert abs(float(r) - ref_reward) < 2e-3
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_prism_cylinders_keep_the_shapes_pose_and_inertia(task):
+    """``cylinders="prism"``: every cylinder becomes a convex mesh prism on a regular 16-gon inscribed in its circle,
+    at the cylinder's world pose (MuJoCo re-centres meshes; the geom frame must compensate) with its length; bodies,
+    masses and inertias as gymnasium-robotics' model."""
+    original = mujoco.MjModel.from_xml_string(adroit.original_xml(task))
+    model = adroit.load_capsule_model(task, cylinders="prism")
+    assert not np.any(model.geom_type == mujoco.mjtGeom.mjGEOM_CYLINDER)
+    cyl = np.flatnonzero(original.geom_type == mujoco.mjtGeom.mjGEOM_CYLINDER)
+    assert np.all(model.geom_type[cyl] == mujoco.mjtGeom.mjGEOM_MESH)
+    d0, d1 = mujoco.MjData(original), mujoco.MjData(model)
+    mujoco.mj_forward(original, d0)
+    mujoco.mj_forward(model, d1)
+    for g in cyl:
+        r, h = original.geom_size[g][:2]
+        np.testing.assert_allclose(d1.geom_xpos[g], d0.geom_xpos[g], atol=1e-9)
+        axis0 = d0.geom_xmat[g].reshape(3, 3)[:, 2]  # the cylinder's axis in the world
+        mesh = model.geom_dataid[g]
+        verts = model.mesh_vert[model.mesh_vertadr[mesh]:model.mesh_vertadr[mesh] + model.mesh_vertnum[mesh]]
+        world = d1.geom_xpos[g] + verts @ d1.geom_xmat[g].reshape(3, 3).T
+        along = (world - d0.geom_xpos[g]) @ axis0
+        across = np.linalg.norm((world - d0.geom_xpos[g]) - np.outer(along, axis0), axis=1)
+        np.testing.assert_allclose(np.sort(np.abs(along)), np.full(32, h), rtol=1e-6)
+        np.testing.assert_allclose(across, np.full(32, r), rtol=1e-6)
+    gym_model = gym_env(task).model
+    np.testing.assert_allclose(model.body_mass, gym_model.body_mass, rtol=1e-12)
+    np.testing.assert_allclose(model.body_inertia, gym_model.body_inertia, rtol=1e-10, atol=1e-15)

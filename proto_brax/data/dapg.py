@@ -220,12 +220,13 @@ def evaluate(task: str, params, nonlinearity: str, episodes: int, seed: int, sam
              model: str = "capsule") -> dict:
     """Returns and D4RL's success rate (success on more than ``success_steps`` of the D4RL horizon's steps) of the
     policy, sampled or mean actions, on the suite's native capsule model (``envs.adroit_native.NativeAdroit``, the
-    physics the MJX env runs) or on gymnasium-robotics' original cylinder model (``model="original"``)."""
+    physics the MJX env runs), on the model with cylinders as convex prisms (``model="prism"``,
+    ``adroit.adroit_xml(cylinders="prism")``) or on gymnasium-robotics' original cylinder model (``"original"``)."""
     from proto_brax import envs
     from proto_brax.envs.adroit_native import NativeAdroit
 
     spec = envs.get_spec(task)
-    env = NativeAdroit(task) if model == "capsule" else _Original(task)
+    env = _Original(task) if model == "original" else NativeAdroit(task, cylinders=model)
     policy = param_policy(nonlinearity, sampled)
     act = jax.jit(lambda obs, k: policy(params, obs, k))
     returns, successes = [], []

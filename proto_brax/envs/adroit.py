@@ -25,6 +25,10 @@ What is reproduced, and from where (``gymnasium_robotics/envs/adroit_hand/adroit
    the latch, the nail and its head, the hammer head, and visual-only ones (table legs, pen caps). To keep the
    *inertia* unchanged — the pen's body mass comes from its geoms (density 1500) — every body that has a converted
    geom and no ``<inertial>`` gets an explicit one with the original compiled mass, centre of mass and inertia.
+   ``adroit_xml(cylinders="prism")`` is the alternative under test: every cylinder a convex mesh prism on a regular
+   16-gon inscribed in its circle (its flat ends kept; MJX collides meshes with boxes) and every contact margin 0
+   (MJX has no margins for meshes; the files' margin is 0.5 mm). Natively the DAPG experts succeed as on the original
+   model there, and half as often on the capsules (docs/MEASUREMENTS.md#adroit).
 2. *Cylinder sites → boxes.* MJX's touch sensor has no cylinder ray, so hammer's ``S_target`` site (the nail-head
    disc, read by the ``S_nail`` touch sensor, the last observation) becomes the box of half-sizes ``(r, r, h)``; the
    ``nail_goal`` site (position only) likewise. Positions are unchanged; the sensor also counts contacts in the corners.
@@ -83,6 +87,7 @@ FRAME_SKIP = 5  # gymnasium-robotics Adroit frame_skip
 # broad phase too (``max_geom_pairs`` 16 or 32) raised the door's error tenfold: neighbouring finger capsules always
 # overlap in bounding spheres, so the nearest-pairs cull drops real contacts. Left unbounded.
 MAX_CONTACT_POINTS = 24
+PRISM_SIDES = 16  # adroit_xml(cylinders="prism"): the polygon a cylinder's convex-mesh stand-in is built on
 # Sensors the observations read: MJX computes every sensor on every physics step (65 on the door: ~10% of a step),
 # and no sensor acts on the physics.
 USED_SENSORS = {"pen": (), "door": (), "hammer": ("S_nail",)}
@@ -168,6 +173,7 @@ def adroit_xml(
     ls_iterations: int | None = None,
     capsule_ends: str = "extend",
     all_sensors: bool = False,
+    cylinders: str = "capsule",
 ) -> str:
     """MJX-loadable XML: ``original_xml`` with every cylinder geom turned into a capsule (same radius and
     half-length) and explicit inertials where a body's inertia came from a converted geom (module docstring).
@@ -181,6 +187,9 @@ def adroit_xml(
     """
     if capsule_ends not in ("extend", "match"):
         raise ValueError(f"capsule_ends must be 'extend' or 'match', not {capsule_ends!r}")
+    if cylinders not in ("capsule", "prism"):
+        raise ValueError(f"cylinders must be 'capsule' or 'prism', not {cylinders!r}")
+    prisms: dict[tuple[str, str], str] = {}  # (radius, half-length) -> mesh name
     xml = original_xml(task)
     compiled = mujoco.MjModel.from_xml_string(xml)
     root = ET.fromstring(xml)
@@ -191,7 +200,14 @@ def adroit_xml(
             raise RuntimeError(f"body order mismatch at {name!r}")
         converted = False
         for geom in body.findall("geom"):
-            if geom.get("type") == "cylinder":
+            if geom.get("type") == "cylinder" and cylinders == "prism":
+                radius, half = geom.get("size").split()[:2]
+                name = prisms.setdefault((radius, half), f"cylinder_prism_{len(prisms)}")
+                geom.set("type", "mesh")
+                geom.set("mesh", name)
+                del geom.attrib["size"]
+                converted = True
+            elif geom.get("type") == "cylinder":
                 geom.set("type", "capsule")
                 if capsule_ends == "match":
                     radius, half = (float(v) for v in geom.get("size").split()[:2])
@@ -224,6 +240,23 @@ def adroit_xml(
             for sensor in list(block):
                 if sensor.get("name") not in USED_SENSORS[task]:
                     block.remove(sensor)
+    if prisms:  # each cylinder as the convex prism on a regular PRISM_SIDES-gon inscribed in its circle
+        # MJX collides meshes without margins: every geom's 0.5 mm contact margin goes (a pair takes the larger one)
+        for geom in root.iter("geom"):
+            if geom.get("margin") is not None:
+                geom.set("margin", "0")
+        for default in root.iter("default"):
+            for geom in default.findall("geom"):
+                geom.set("margin", "0")
+        asset = root.find("asset")
+        if asset is None:
+            asset = ET.SubElement(root, "asset")
+        angles = 2 * np.pi * np.arange(PRISM_SIDES) / PRISM_SIDES
+        for (radius, half), name in prisms.items():
+            r, h = float(radius), float(half)
+            ring = [(r * np.cos(a), r * np.sin(a)) for a in angles]
+            vertex = " ".join(f"{float(x)!r} {float(y)!r} {float(z)!r}" for z in (-h, h) for x, y in ring)
+            asset.append(ET.Element("mesh", name=name, vertex=vertex, scale="1 1 1"))  # (the files default to mm)
     custom = root.find("custom")
     bounds = [("max_contact_points", max_contact_points), ("max_geom_pairs", max_geom_pairs)]
     if any(v is not None for _, v in bounds):

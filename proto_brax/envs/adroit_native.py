@@ -23,11 +23,12 @@ class NativeAdroit:
     non-finite state; the time limit is the caller's (``envs.get_spec(task).episode_length``).
     """
 
-    def __init__(self, task: str, d4rl_reward: bool | None = None):
+    def __init__(self, task: str, d4rl_reward: bool | None = None, cylinders: str = "capsule"):
         spec = envs.get_spec(task)
         self.task = task
         self.d4rl_reward = dict(spec.kwargs).get("d4rl_reward", False) if d4rl_reward is None else d4rl_reward
-        self.model = adroit.load_capsule_model(task)  # (the MJX-only contact bounds are ignored natively)
+        # (the MJX-only contact bounds are ignored natively); cylinders: adroit.adroit_xml's stand-in for them
+        self.model = adroit.load_capsule_model(task, cylinders=cylinders)
         self.data = mujoco.MjData(self.model)
         self.ids = adroit.task_ids(task, self.model)
         field, body = adroit.LAYOUT[task]
