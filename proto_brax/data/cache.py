@@ -273,13 +273,8 @@ def make_dataset(name: str, size: int | None = None, seed: int = 0, num_envs: in
     parts = []
     bar = tqdm(total=total, unit="tr", desc=name, disable=not progress, dynamic_ncols=True)
     for i, ((_, policy, params, info), steps) in enumerate(zip(policies, shares)):
-        if native:
-            part = g.native_rollouts(env_name, spec.episode_length, policy, params, jax.random.fold_in(key, i),
-                                     num_envs, steps, bar)
-        else:
-            part = g.rollouts(env, spec.episode_length, policy, params, jax.random.fold_in(key, i), num_envs, steps,
-                              g.segment_for(steps), bar)
-        parts.append(part)
+        parts.append(g.dataset_rollouts(env_name, spec.episode_length, policy, params, jax.random.fold_in(key, i),
+                                        num_envs, steps, bar, env))
         info["transitions"] = steps * num_envs
     bar.close()
     data = jax.tree.map(lambda *xs: np.concatenate(xs).astype(np.float32), *parts)
@@ -332,14 +327,8 @@ def make_cloned(name: str, size: int, seed: int = 0, num_envs: int = 100, behavi
     actor = jax.tree.map(lambda x: x[0], state.actor)
     spec = envs.get_spec(env_name)
     steps = size // 2 // num_envs
-    from proto_brax.envs.native import NATIVE_ENVS
-
-    if env_name in NATIVE_ENVS:
-        cloned = g.native_rollouts(env_name, spec.episode_length, g.stochastic_policy(pre.nets), actor,
-                                   g.dataset_key(seed, "cloned"), num_envs, steps)
-    else:
-        cloned = g.rollouts(envs.make_env(env_name), spec.episode_length, g.stochastic_policy(pre.nets), actor,
-                            g.dataset_key(seed, "cloned"), num_envs, steps, g.segment_for(steps))
+    cloned = g.dataset_rollouts(env_name, spec.episode_length, g.stochastic_policy(pre.nets), actor,
+                                g.dataset_key(seed, "cloned"), num_envs, steps)
     data = jax.tree.map(lambda a, b: np.concatenate([a, b]).astype(np.float32), expert, cloned)
     meta = {**{k: emeta[k] for k in ("env", "backend", "seed", "num_envs", "episode_length", "version",
                                      "expert_snapshot")},

@@ -206,6 +206,7 @@ class _Original:
         from proto_brax.envs import adroit
 
         gym.register_envs(gymnasium_robotics)
+        self.task = task
         self.env = gym.make(adroit.get_task(task).gym_id, max_episode_steps=10**9).unwrapped
 
     def reset(self, key: jax.Array) -> np.ndarray:
@@ -224,25 +225,16 @@ def evaluate(task: str, params, nonlinearity: str, episodes: int, seed: int, sam
     ``adroit.adroit_xml(cylinders="prism")``) or on gymnasium-robotics' original cylinder model (``"original"``)."""
     from proto_brax import envs
     from proto_brax.envs.adroit_native import NativeAdroit
+    from proto_brax.envs.native import native_episodes
 
-    spec = envs.get_spec(task)
     env = _Original(task) if model == "original" else NativeAdroit(task, cylinders=model)
     policy = param_policy(nonlinearity, sampled)
     act = jax.jit(lambda obs, k: policy(params, obs, k))
-    returns, successes = [], []
-    for key in jax.random.split(jax.random.PRNGKey(seed), episodes):
-        obs, ret, ok = env.reset(key), 0.0, 0
-        for t in range(spec.episode_length):
-            obs, reward, terminal, success = env.step(np.asarray(act(obs, jax.random.fold_in(key, t))))
-            ret, ok = ret + reward, ok + int(success)
-            if terminal:
-                break
-        returns.append(ret)
-        successes.append(ok > spec.success_steps)
-    mean = float(np.mean(returns))
-    return {"return_mean": mean, "return_std": float(np.std(returns)), "returns": returns,
-            "success_rate": float(np.mean(successes)), "normalized": float(envs.normalized_score(task, mean)),
-            "episodes": episodes, "actions": "sampled (clipped)" if sampled else "mean (clipped)", "model": model}
+    r = native_episodes(env, lambda obs, key, t: act(obs, jax.random.fold_in(key, t)),
+                        jax.random.split(jax.random.PRNGKey(seed), episodes))
+    return {**r, "return_std": float(np.std(r["returns"])),
+            "normalized": float(envs.normalized_score(task, r["return_mean"])), "episodes": episodes,
+            "actions": "sampled (clipped)" if sampled else "mean (clipped)", "model": model}
 
 
 def convert(args: Args) -> Path:

@@ -200,9 +200,10 @@ def _episode_returns(env, horizon, policy, params, key, episodes):
 def snapshot_policy(snap: Snapshot, env, sampled: bool = True) -> tuple[ParamPolicy, object]:
     """(policy, params) of a behaviour snapshot: the suite's SAC actor (tanh-Gaussian samples, or tanh of the mean)
     or a DAPG expert (``data.dapg``: Gaussian samples or the mean, clipped to the action box)."""
-    if snap.metadata.get("policy_class") == "dapg_mlp":
+    from proto_brax.data import dapg
+
+    if snap.metadata.get("policy_class") == dapg.POLICY_CLASS:
         from proto_brax.checkpoints import restore
-        from proto_brax.data import dapg
 
         params, _ = restore(snap.path, dapg.template(snap.metadata))
         return dapg.param_policy(snap.metadata["dapg"]["nonlinearity"], sampled), params
@@ -318,3 +319,15 @@ def native_rollouts(env_name: str, horizon: int, policy: ParamPolicy, params, ke
             bar.update(num_envs)
     tr = Transition(**{k: np.stack(v) for k, v in out.items()})  # [steps, envs, ...]
     return jax.device_get(flatten_env_major(jax.tree.map(jnp.asarray, tr)))
+
+
+def dataset_rollouts(env_name: str, horizon: int, policy: ParamPolicy, params, key, num_envs: int, steps: int,
+                     bar=None, env=None):
+    """A dataset's rollouts: on the env's native twin where it has one (:func:`native_rollouts`: gymnasium's own v5
+    envs, Adroit's MuJoCo model), else jitted on Brax/MJX (:func:`rollouts`, on ``env`` or the registered env)."""
+    from proto_brax.envs.native import NATIVE_ENVS
+
+    if env_name in NATIVE_ENVS:
+        return native_rollouts(env_name, horizon, policy, params, key, num_envs, steps, bar)
+    return rollouts(env if env is not None else envs.make_env(env_name), horizon, policy, params, key, num_envs,
+                    steps, segment_for(steps), bar)

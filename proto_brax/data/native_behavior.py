@@ -44,7 +44,7 @@ from proto_brax.config import FinetuneConfig
 from proto_brax.data.behavior import SAC_SCRATCH, snapshot_dir
 from proto_brax.data.dataset import Transition
 from proto_brax.data.replay import ReplayBuffer, replay_init, replay_insert, replay_sample
-from proto_brax.envs.native import native_env
+from proto_brax.envs.native import native_env, native_episodes
 from proto_brax.networks import NetworkConfig, make_networks
 
 
@@ -121,19 +121,7 @@ def make_trainer(args: Args):
 def evaluate(env, act, learner: Learner, episodes: int, key: jax.Array) -> dict:
     """Deterministic episodes to the time limit (or termination): returns, and D4RL's success rule where the task has
     one (Adroit; else the success rate is None)."""
-    spec = envs.get_spec(env.task)
-    returns, successes = [], []
-    for k in jax.random.split(key, episodes):
-        obs, ret, steps_ok = env.reset(k), 0.0, 0
-        for _ in range(spec.episode_length):
-            obs, reward, terminal, success = env.step(np.asarray(act(learner, obs, k, 0, True)))
-            ret, steps_ok = ret + reward, steps_ok + int(success)
-            if terminal:
-                break
-        returns.append(ret)
-        successes.append(spec.success_steps is not None and steps_ok > spec.success_steps)
-    rate = float(np.mean(successes)) if spec.success_steps is not None else None
-    return {"returns": returns, "return_mean": float(np.mean(returns)), "success_rate": rate}
+    return native_episodes(env, lambda obs, k, t: act(learner, obs, k, 0, True), jax.random.split(key, episodes))
 
 
 def train(args: Args) -> list[dict]:
