@@ -217,7 +217,7 @@ def test_a_readme_without_the_markers_is_refused_before_anything_is_written(publ
 
 def test_dataset_curves_are_mean_and_std_over_seeds_from_pi0(published, tmp_path):
     mod = load_module()
-    table = mod.collect(mod.Args(results=published / "locomotion", bundles=published / "none"))
+    table = mod.collect(published / "locomotion", published / "none")
     curves = mod.dataset_curves("hopper-medium", table["hopper-medium"], tmp_path / "curves.png")
     assert list(curves) == ["proto-sac", "frozen", "direct"]  # the paper's order; the τ ablation is not a method
     c = curves["proto-sac"]  # seed s: π₀ 30, then 28 - s, 50, 80 + s, 80 + s at steps 100, 200, 300, 1000
@@ -448,7 +448,7 @@ def test_comparisons_beside_the_papers_pair_datasets_and_say_whether_cis_separat
         config = json.loads((d / "config.json").read_text())
         (d / "config.json").write_text(json.dumps({**config, "finetune": {"updates_per_step": 1}}))
     publish(root, "walker2d-medium", "rlpd-utd1")  # no proto-sac there: not paired
-    table = mod.collect(mod.Args(results=root, bundles=tmp_path / "none"))
+    table = mod.collect(root, tmp_path / "none")
     rlpd, official = (mod.comparison(table, c) for c in mod.COMPARISONS)
     text = "\n".join(rlpd)
     # finals: RLPD 40 + s, PROTO-SAC 80 + s over seeds 0, 1, 2 (population std √(2/3) = 0.8)
@@ -460,3 +460,28 @@ def test_comparisons_beside_the_papers_pair_datasets_and_say_whether_cis_separat
     empty = "\n".join(mod.comparison(table, mod.COMPARISONS[0]))
     assert ("Not published yet: `python benchmarks/locomotion.py run --methods rlpd-utd1 rlpd --datasets hopper-medium "
             "halfcheetah-medium`") in empty
+
+
+def test_other_domains_get_a_section_with_success_rates_and_claims(tmp_path):
+    """An Adroit sweep published as locomotion.py --domain adroit writes it: the section states its budget, the
+    methods' final scores and final success rates (IQM over seeds: the middle of three), the claims on its own
+    sweeps, and its curves; a domain with nothing published names the command that runs it."""
+    mod = load_module()
+    root = tmp_path / "adroit"
+    for method in ("proto-sac", "direct", "frozen"):
+        d = publish(root, "pen-human", method)
+        rows = [json.loads(line) for line in gzip.open(d / "metrics.jsonl.gz", "rt")]
+        with gzip.open(d / "metrics.jsonl.gz", "wt") as f:  # success = score / 100, as distinct per seed
+            f.write("\n".join(json.dumps({**r, "success_rate": r["normalized_score"] / 100}) for r in rows) + "\n")
+    text = "\n".join(mod.domain_section(locomotion_plan.DOMAINS["adroit"], root, tmp_path / "none"))
+    assert "## Adroit (pen, door, hammer on MJX)" in text
+    assert "online budget 1,000 steps per run" in text and "Published: 3 of the 12 planned sweeps" in text
+    # finals: proto-sac 80 + s, frozen 60 + s, direct 70 + s; success the same / 100
+    assert "| proto-sac | 1 | 3 | 81.0 [" in text and "| 0.81 [" in text
+    assert "| direct | – | 30.0 | 6.0 | 71.0 ± 0.8 | 71.0 [" in text and "| 3 | 0.71 [" in text
+    assert "### The paper's claims (1) and (2) on adroit" in text
+    assert "PROTO ends above Frozen (τ = 0)** on 1 of 1 datasets" in text
+    assert "--domain adroit --datasets pen-human --methods proto-sac frozen direct" in text
+    assert (root / "pen-human" / "curves.png").stat().st_size > 0 and (root / "aggregate.png").exists()
+    empty = "\n".join(mod.domain_section(locomotion_plan.DOMAINS["antmaze"], tmp_path / "antmaze", tmp_path / "none"))
+    assert "Not published yet: `python benchmarks/locomotion.py run --domain antmaze --single-core`" in empty
