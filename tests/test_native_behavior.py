@@ -80,3 +80,34 @@ def test_host_loop_sac_trains_on_gymnasiums_own_v5_env(tmp_path):
     log = nb.train(args)
     assert [r["step"] for r in log] == [100, 200] and all(r["eval_success_rate"] is None for r in log)
     assert [s.step for s in g.list_snapshots("hopper-v5", tmp_path / "behavior")] == [100, 200]
+
+
+def test_measure_runs_a_v5_snapshot_on_gymnasiums_own_env(tmp_path, monkeypatch):
+    """``datasets measure hopper-v5`` (which picks the medium snapshot) samples each snapshot's tanh-Gaussian on the
+    native env its datasets are recorded on, not on the MJX port: the recorded returns are those of an episode loop
+    written out here on gymnasium's Hopper-v5 (episode e resets from key e of the seed's split, the policy's key at
+    step t is that key folded with t + 1)."""
+    from proto_brax.cli import datasets as datasets_cli
+    from proto_brax.envs.gym_v5 import NativeGymV5
+
+    nb.train(nb.Args(env="hopper-v5", steps=100, snapshot_every=100, eval_episodes=1, learning_starts=50,
+                     buffer_capacity=200, batch_size=16, hidden=(8, 8), out=tmp_path / "behavior",
+                     resume_dir=tmp_path / "resume"))
+    monkeypatch.setattr(g, "_episode_returns", None)  # the MJX path would fail
+    out = datasets_cli.cmd_measure(datasets_cli.Measure("hopper-v5", episodes=3, seed=4,
+                                                        behavior_root=tmp_path / "behavior"))
+    snap = g.list_snapshots("hopper-v5", tmp_path / "behavior")[-1]
+    nets, params = g.load_snapshot_actor(snap, NativeGymV5("hopper-v5"))
+    sim, returns = NativeGymV5("hopper-v5"), []
+    for k in jax.random.split(jax.random.PRNGKey(4), 3):
+        obs, total = sim.reset(k), 0.0
+        for t in range(1000):
+            a = np.asarray(g.stochastic_policy(nets)(params, obs[None], jax.random.fold_in(k, t + 1)))[0]
+            obs, reward, terminal, _ = sim.step(a)
+            total += reward
+            if terminal:
+                break
+        returns.append(total)
+    assert out[0]["mean"] == pytest.approx(np.mean(returns), rel=1e-6)
+    assert snap.metadata["behavior_return"]["std"] == pytest.approx(np.std(returns), rel=1e-6)
+    assert np.std(returns) > 0  # three different episodes

@@ -136,10 +136,8 @@ def cmd_measure(a: Measure) -> list[dict]:
     from proto_brax.files import write_json_atomic
 
     spec = envs.get_spec(a.env)
-    env = envs.make_env(a.env)
     out = []
-    for snap, ret in g.behavior_returns(env, spec.episode_length, g.list_snapshots(a.env, a.behavior_root),
-                                        a.episodes, a.seed):
+    for snap, ret in g.behavior_returns(a.env, g.list_snapshots(a.env, a.behavior_root), a.episodes, a.seed):
         rec = {"mean": float(ret.mean()), "std": float(ret.std()), "episodes": a.episodes, "seed": a.seed,
                "policy": "stochastic (tanh-Gaussian samples), as in the datasets"}
         write_json_atomic(snap.path / "metadata.json", {**snap.metadata, "behavior_return": rec})

@@ -181,13 +181,32 @@ def pick_expert_medium(snaps: list[Snapshot], reference: tuple[float, float] | N
     return expert, medium
 
 
-def behavior_returns(env, horizon: int, snaps: list[Snapshot], episodes: int, seed: int):
-    """Yield (snapshot, episode returns [episodes]) of each snapshot's stochastic policy, one compiled program for
-    all (the parameters are an argument)."""
+def behavior_returns(env_name: str, snaps: list[Snapshot], episodes: int, seed: int):
+    """Yield (snapshot, episode returns [episodes]) of each snapshot's stochastic policy over the registered time
+    limit: on the env's native twin where it has one (the dynamics its datasets are recorded on, at native speed:
+    ``envs.native.native_episodes``, one jitted policy call per step), else vmapped on Brax/MJX, one compiled program
+    for all snapshots (the parameters are an argument)."""
+    from proto_brax.envs.native import NATIVE_ENVS
+
+    env, horizon = envs.make_env(env_name), envs.get_spec(env_name).episode_length
     for snap in snaps:
         policy, params = snapshot_policy(snap, env)
-        yield snap, np.asarray(_episode_returns(env, horizon, policy, params,
-                                                jax.random.PRNGKey(seed), episodes))
+        key = jax.random.PRNGKey(seed)
+        yield snap, (native_returns(env_name, policy, params, key, episodes) if env_name in NATIVE_ENVS
+                     else np.asarray(_episode_returns(env, horizon, policy, params, key, episodes)))
+
+
+def native_returns(env_name: str, policy: ParamPolicy, params, key: jax.Array, episodes: int) -> np.ndarray:
+    """Episode returns [episodes] of ``policy`` on the env's native twin, one episode per key of ``key``'s split;
+    the policy's key at step t is the episode's key folded with t + 1."""
+    from proto_brax.envs.native import native_env, native_episodes
+
+    act = jax.jit(policy)
+
+    def sample(obs, k, t):
+        return np.asarray(act(params, obs[None], jax.random.fold_in(k, t + 1)))[0]
+
+    return np.asarray(native_episodes(native_env(env_name), sample, jax.random.split(key, episodes))["returns"])
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1, 2, 5))
