@@ -59,11 +59,12 @@ class Args:
     """Where ``ablate-tau`` / ``ablate-eta`` run (the paper's appendix ablates on three datasets)."""
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
     steps: int | None = None
-    """Online budget per run (paper: 10⁶), stated in every summary. Default: the domain's (50k)."""
+    """Online budget per run (paper: 10⁶), stated in every summary. Default: the domain's (locomotion and AntMaze 50k,
+    Adroit 10k)."""
     eval_every: int | None = None
     """Evaluation period (paper: 5k of 10⁶). Default: the domain's. Locomotion's 2.5k puts two evaluations (2.5k,
-    5k) inside the first 10% of the run, where the initial drop is measured; Adroit's and AntMaze's 5k halve the
-    MJX evaluations, which cost there what the updates do."""
+    5k) inside the first 10% of the run, where the initial drop is measured; AntMaze's 5k halves the MJX
+    evaluations, which cost there what the updates do; Adroit's 1k is 10% of its 10k."""
     runs: Path | None = None
     """Working sweeps (resume state), default $PROTO_BRAX_RUNS/DOMAIN (~/.cache/proto_brax/runs/DOMAIN): outside the
     work tree, so that a later checkout on the same machine resumes them."""
