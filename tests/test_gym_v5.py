@@ -24,7 +24,7 @@ TASKS = ("hopper", "walker2d", "halfcheetah", "ant")
 @pytest.fixture(scope="module", params=TASKS)
 def pair(request):
     task = request.param
-    return task, gym_v5.GymV5(task), gym_v5.native_env(task)
+    return task, gym_v5.GymV5(task), gym_v5.gymnasium_env(task)
 
 
 def test_registry_and_sizes(pair):
@@ -166,7 +166,7 @@ LOCKSTEP = {  # task: (steps, qpos_tol, obs_tol, reward_tol)
 def test_lockstep_matches_gymnasium(task):
     steps, qpos_tol, obs_tol, reward_tol = LOCKSTEP[task]
     env = envs.make_env(f"{task}-v5")
-    native = gym_v5.native_env(task)
+    native = gym_v5.gymnasium_env(task)
     native.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1.0, 1.0, (steps, env.action_size))
     run = gym_v5.lockstep(env, jax.jit(env.step), native, actions)
@@ -189,7 +189,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np
 from proto_brax.envs import gym_v5
 env = gym_v5.GymV5("halfcheetah")
-native = gym_v5.native_env("halfcheetah")
+native = gym_v5.gymnasium_env("halfcheetah")
 native.reset(seed=0)
 run = gym_v5.lockstep(env, jax.jit(env.step), native, np.random.default_rng(0).uniform(-1, 1, (40, 6)))
 print("MAXERR", run["qpos_err"].max(), run["obs_err"].max(), run["reward_err"].max())

@@ -12,7 +12,7 @@ from proto_brax import envs
 from proto_brax.data import generate as g
 from proto_brax.data import minari_collect as mc
 from proto_brax.data.dataset import CorruptDatasetError, load_minari
-from proto_brax.envs.gym_v5 import NativeGymV5, native_env
+from proto_brax.envs.gym_v5 import NativeGymV5, gymnasium_env
 
 minari = pytest.importorskip("minari")
 
@@ -33,7 +33,7 @@ def test_random_collection_is_gymnasiums_hopper_step_for_step(tmp_path):
     assert len(episodes) > 3  # a random hopper falls within ~20-50 steps: terminations split the rows
     assert data.timeouts[-1] == 1 and data.terminals[:-1][data.timeouts[:-1] > 0].sum() == 0
     # Replay every episode on a fresh native env reset with the collector's seeds: same rows, same flags.
-    rng, env = np.random.default_rng(3), native_env("hopper")
+    rng, env = np.random.default_rng(3), gymnasium_env("hopper")
     for rows in episodes:
         obs, _ = env.reset(seed=int(rng.integers(2**31 - 1)))
         np.testing.assert_array_equal(data.observations[rows[0]], np.float32(obs))

@@ -236,7 +236,7 @@ def first_above(err: np.ndarray, tol: float) -> int | None:
 def lockstep_stats(task: str, env, step, starts: int, lockstep_steps: int) -> dict:
     """Ours (jitted ``step``) and gymnasium's env in lockstep from ``starts`` of gymnasium's resets on random actions:
     the max errors at steps 1, 10, 50, the first steps where |Δqpos| exceeds 1e-3 and 1e-1, each side's first done."""
-    native = gym_v5.native_env(task)
+    native = gym_v5.gymnasium_env(task)
     runs = []
     for start in range(starts):
         native.reset(seed=start)

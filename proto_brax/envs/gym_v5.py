@@ -275,7 +275,7 @@ class GymV5(Env):
 # ------------------------------------------------------------------------------------------------------------------
 
 
-def native_env(task: str, **overrides):
+def gymnasium_env(task: str, **overrides):
     """gymnasium's own v5 env (unwrapped: no time limit, no order enforcing), with the same overrides."""
     import gymnasium as gym
 
@@ -310,7 +310,7 @@ class NativeGymV5:
 
     def __init__(self, name: str):
         self.task = name
-        self.env = native_env(name.removesuffix("-v5"))
+        self.env = gymnasium_env(name.removesuffix("-v5"))
         self.observation_size = int(self.env.observation_space.shape[0])
         self.action_size = int(self.env.action_space.shape[0])
 
