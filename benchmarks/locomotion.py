@@ -49,7 +49,7 @@ PRETRAINED = ROOT / "checkpoints" / "pretrained"
 @dataclasses.dataclass
 class Args:
     action: tyro.conf.Positional[Literal["run", "status"]] = "run"
-    domain: Literal["locomotion", "adroit", "antmaze"] = "locomotion"
+    domain: Literal["locomotion", "adroit", "antmaze", "mujoco-v5"] = "locomotion"
     """Which benchmark (``locomotion_plan.DOMAINS``): its datasets, methods, preset, budget and results folder."""
     datasets: tuple[str, ...] | None = None
     """Default: the domain's (locomotion: the 12 Brax datasets)."""

@@ -485,3 +485,6 @@ def test_other_domains_get_a_section_with_success_rates_and_claims(tmp_path):
     assert (root / "pen-human" / "curves.png").stat().st_size > 0 and (root / "aggregate.png").exists()
     empty = "\n".join(mod.domain_section(locomotion_plan.DOMAINS["antmaze"], tmp_path / "antmaze", tmp_path / "none"))
     assert "Not published yet: `python benchmarks/locomotion.py run --domain antmaze --single-core`" in empty
+    v5 = locomotion_plan.DOMAINS["mujoco-v5"]
+    assert v5.datasets[0] == "hopper-v5-medium" and locomotion_plan.env_of(v5.datasets[0]) == "hopper-v5"
+    assert "--domain mujoco-v5" in "\n".join(mod.domain_section(v5, tmp_path / "mujoco-v5", tmp_path / "none"))

@@ -61,7 +61,12 @@ ANTMAZE = Domain("antmaze", tuple(f"antmaze-{m}" for m in ("umaze-diverse", "med
                  anneal_over_budget=False, dataset_size=1_000_000,
                  bundle_flags={"eql": ("--steps", "200000", "--hp", "alpha", "0.5"),  # IQL's AntMaze: 0.9, β 10
                                "iql": ("--steps", "200000", "--hp", "expectile", "0.9", "temperature", "10")})
-DOMAINS = {d.name: d for d in (LOCOMOTION, ADROIT, ANTMAZE)}
+# Gymnasium's MuJoCo v5 locomotion on MJX (envs/gym_v5.py), datasets recorded on gymnasium's own envs: the
+# locomotion benchmark's preset, budget and paper methods (no ablations) on D4RL-comparable dynamics and references.
+MUJOCO_V5 = Domain("mujoco-v5", tuple(f"{env}-v5-{kind}" for env in ("hopper", "halfcheetah")
+                                      for kind in ("medium", "medium-replay", "random")),
+                   ("proto-sac", "frozen", "direct", "iql"), PRESET, 50_000, 2_500, dataset_size=1_000_000)
+DOMAINS = {d.name: d for d in (LOCOMOTION, ADROIT, ANTMAZE, MUJOCO_V5)}
 
 
 def env_of(dataset: str) -> str:

@@ -71,7 +71,7 @@ class Args:
     out: Path = ROOT / "benchmarks" / "RESULTS.md"
     # its results section between README_BEGIN and README_END gets the coverage and the claims' verdicts
     readme: Path | None = ROOT / "README.md"
-    domains: tuple[str, ...] = ("adroit", "antmaze")
+    domains: tuple[str, ...] = ("mujoco-v5", "adroit", "antmaze")
     """The other benchmarks (``locomotion_plan.DOMAINS``) with a section each, read from ``results``' sibling folder
     of the domain's name (``benchmarks/results/adroit``)."""
 
@@ -627,6 +627,12 @@ def render(args: Args) -> tuple[str, str]:
 
 # What a reader needs to read each other domain's numbers.
 DOMAIN_NOTES = {
+    "mujoco-v5": ("Gymnasium MuJoCo v5 locomotion (hopper-v5, halfcheetah-v5 on MJX)",
+                  "Gymnasium's own v5 XMLs, observations, rewards, termination and reset noise on MJX "
+                  "(`proto_brax/envs/gym_v5.py`, cross-checked against gymnasium in `tests/test_gym_v5.py`); the "
+                  "datasets are recorded on gymnasium's native envs with the suite's SAC snapshots, and the "
+                  "normalized scores use D4RL's references, so these numbers sit beside published D4RL ones (the "
+                  "behaviour policies are ours, not D4RL's)."),
     "adroit": ("Adroit (pen, door, hammer on MJX)",
                "gymnasium-robotics' Adroit hands on MJX with every cylinder a capsule (MJX collides no cylinder with "
                "a box; docs/MEASUREMENTS.md#adroit measures what that costs), D4RL's rewards, time limits and "
