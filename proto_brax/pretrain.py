@@ -12,7 +12,8 @@ from proto_brax.experiment.pretrain import PretrainArgs, pretrain
 __all__ = ["PretrainArgs", "main", "pretrain"]
 
 if __name__ == "__main__":
-    from proto_brax.startup import quiet_start
+    from proto_brax.startup import compilation_cache, quiet_start
 
     quiet_start()
+    compilation_cache()
     main()

@@ -39,6 +39,25 @@ def quiet_start() -> None:
             print(line, file=sys.stdout)
 
 
+CACHE_VAR = "PROTO_BRAX_JAX_CACHE"
+
+
+def compilation_cache() -> str | None:
+    """Turn on JAX's persistent compilation cache at $PROTO_BRAX_JAX_CACHE (default ~/.cache/proto_brax/jax; an
+    empty value leaves it off) and return its folder. A resumed sweep, or another sweep of the same program (Frozen
+    and direct are PROTO's program with other traced values), loads its compiled chunks instead of compiling them
+    again: an MJX hand's chunk takes several minutes to compile here (docs/MEASUREMENTS.md). JAX keys each entry on
+    the program, the XLA flags, the device and the versions, so a changed program compiles anew."""
+    path = os.environ.get(CACHE_VAR, os.path.join(os.path.expanduser("~"), ".cache", "proto_brax", "jax"))
+    if not path:
+        return None
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)  # JAX's default: skip the cheap ones
+    return path
+
+
 def debug_enabled(argv: list[str] | None = None) -> bool:
     """Tracebacks of input errors: --debug on the command line or PROTO_BRAX_DEBUG=1 in the environment."""
     argv = sys.argv[1:] if argv is None else argv

@@ -13,7 +13,8 @@ from proto_brax.experiment.run import run_sweep
 __all__ = ["PRESETS", "SweepArgs", "main", "parse_args", "run_sweep", "sweep_args"]
 
 if __name__ == "__main__":
-    from proto_brax.startup import quiet_start
+    from proto_brax.startup import compilation_cache, quiet_start
 
     quiet_start()
+    compilation_cache()
     main()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 SCRIPT = """
 import warnings
@@ -88,3 +89,29 @@ def test_every_python_m_entry_point_starts_quietly():
                            timeout=300)
         out = p.stdout + p.stderr
         assert "warp" not in out and "not actively being maintained" not in out, (module, out[:300])
+
+
+def test_the_commands_turn_on_jaxs_persistent_compilation_cache(tmp_path, monkeypatch):
+    """``python -m proto_brax.sweep`` / ``pretrain`` call ``startup.compilation_cache``: JAX's persistent cache at
+    $PROTO_BRAX_JAX_CACHE (default under ~/.cache/proto_brax), off when the variable is empty."""
+    import jax
+
+    from proto_brax import startup
+
+    before = (jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs)
+    try:
+        monkeypatch.setenv(startup.CACHE_VAR, str(tmp_path / "jc"))
+        assert startup.compilation_cache() == str(tmp_path / "jc")
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "jc")
+        monkeypatch.setenv(startup.CACHE_VAR, "")
+        jax.config.update("jax_compilation_cache_dir", before[0])
+        assert startup.compilation_cache() is None and jax.config.jax_compilation_cache_dir == before[0]
+        monkeypatch.delenv(startup.CACHE_VAR)
+        monkeypatch.setenv("HOME", str(tmp_path))
+        assert startup.compilation_cache() == str(tmp_path / ".cache" / "proto_brax" / "jax")
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before[0])
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
+    for module in ("sweep", "pretrain"):
+        source = (Path(__file__).resolve().parents[1] / "proto_brax" / f"{module}.py").read_text()
+        assert "compilation_cache()" in source.split('if __name__ == "__main__":')[1]
