@@ -90,10 +90,9 @@ def run_scores(sweep: Sweep) -> list[dict]:
         if not rows:
             continue
         curve = [float(row["normalized_score"]) for row in rows]
-        success = [float(row.get("success_rate", math.nan)) for row in init + rows]  # Adroit, AntMaze
         out.append({"seed": r.seed, "point": r.point, "initial": init[0]["normalized_score"] if init else math.nan,
                     "drop": float(lowest_early_scores([rows])[0]), "final": curve[-1],
-                    "success_initial": success[0] if init else math.nan, "success_final": success[-1],
+                    "success_final": float(rows[-1].get("success_rate", math.nan)),  # Adroit, AntMaze
                     "late": float(np.mean(curve[-LATE_EVALS:])), "lowest": min(curve),
                     "diverged": r.diverged, "steps": [row["step"] for row in rows], "curve": curve})
     return out

@@ -185,28 +185,30 @@ def behavior_returns(env_name: str, snaps: list[Snapshot], episodes: int, seed: 
     """Yield (snapshot, episode returns [episodes]) of each snapshot's stochastic policy over the registered time
     limit: on the env's native twin where it has one (the dynamics its datasets are recorded on, at native speed:
     ``envs.native.native_episodes``, one jitted policy call per step), else vmapped on Brax/MJX, one compiled program
-    for all snapshots (the parameters are an argument)."""
-    from proto_brax.envs.native import NATIVE_ENVS
+    for all snapshots (the parameters are an argument). One env serves every snapshot (each episode resets from its
+    key); the native twin's sizes stand in for the MJX env's, which need not be built."""
+    from proto_brax.envs.native import NATIVE_ENVS, native_env
 
-    env, horizon = envs.make_env(env_name), envs.get_spec(env_name).episode_length
+    native = env_name in NATIVE_ENVS
+    env, horizon = (native_env if native else envs.make_env)(env_name), envs.get_spec(env_name).episode_length
     for snap in snaps:
         policy, params = snapshot_policy(snap, env)
         key = jax.random.PRNGKey(seed)
-        yield snap, (native_returns(env_name, policy, params, key, episodes) if env_name in NATIVE_ENVS
+        yield snap, (native_returns(env, policy, params, key, episodes) if native
                      else np.asarray(_episode_returns(env, horizon, policy, params, key, episodes)))
 
 
-def native_returns(env_name: str, policy: ParamPolicy, params, key: jax.Array, episodes: int) -> np.ndarray:
-    """Episode returns [episodes] of ``policy`` on the env's native twin, one episode per key of ``key``'s split;
-    the policy's key at step t is the episode's key folded with t + 1."""
-    from proto_brax.envs.native import native_env, native_episodes
+def native_returns(env, policy: ParamPolicy, params, key: jax.Array, episodes: int) -> np.ndarray:
+    """Episode returns [episodes] of ``policy`` on a native twin ``env`` (``envs.native.native_env``), one episode
+    per key of ``key``'s split; the policy's key at step t is the episode's key folded with t + 1."""
+    from proto_brax.envs.native import native_episodes
 
     act = jax.jit(policy)
 
     def sample(obs, k, t):
         return np.asarray(act(params, obs[None], jax.random.fold_in(k, t + 1)))[0]
 
-    return np.asarray(native_episodes(native_env(env_name), sample, jax.random.split(key, episodes))["returns"])
+    return np.asarray(native_episodes(env, sample, jax.random.split(key, episodes))["returns"])
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1, 2, 5))
