@@ -447,3 +447,46 @@ def test_evaluation_stops_when_every_episode_has_ended_with_the_full_horizons_re
     for i, k in enumerate(keys):
         np.testing.assert_array_equal(grid.returns[i], ref(k)[0])
         np.testing.assert_array_equal(grid.lengths[i], ref(k)[1])
+
+
+# A sharded batched Cholesky, as MJX's hands factor their 30-dof matrices in a multi-seed sweep: 64 matrices per device
+# is worth ~6·10⁵ flops, over jaxlib's ~2·10⁵ threshold for splitting the batch onto XLA's CPU pool.
+_POOL_PROGRAM = """
+import collections, os, sys
+from proto_brax.train.grid import use_host_devices
+n_dev = use_host_devices(int(sys.argv[1]))
+import jax, jax.numpy as jnp
+from jax.sharding import NamedSharding, PartitionSpec as P
+def f(x):
+    def body(c, _):
+        a = c @ jnp.swapaxes(c, -1, -2) + 30 * jnp.eye(30)
+        return c * 0.999 + 1e-3 * jnp.linalg.cholesky(a), None
+    return jax.lax.scan(body, x, None, length=100)[0]
+x = jax.random.normal(jax.random.key(0), (64 * n_dev, 30, 30)) * 0.1
+x = jax.device_put(x, NamedSharding(jax.make_mesh((n_dev,), ("d",)), P("d")))
+g = jax.jit(f)
+for _ in range(5):
+    x = g(x)
+assert bool(jnp.isfinite(x).all())
+names = collections.Counter(open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task"))
+print(n_dev, names["tf_XLAEigen"])
+"""
+
+
+@pytest.mark.parametrize("devices, pool", [(1, 1), (2, 3)])
+def test_batched_lapack_kernels_finish_on_the_host_devices_the_sweep_uses(devices, pool):
+    """Regression for the Adroit sweep's deadlock: jaxlib's batched Cholesky, run on an XLA pool worker, splits its
+    batch onto the same pool and waits; with two devices and XLA's default pool (one worker per device, both blocked
+    so) this program hung in 3 runs of 3 before ``use_host_devices`` sized the pool (``grid.cpu_pool_threads``)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("NPROC", "XLA_FLAGS")}
+    try:
+        out = subprocess.run([sys.executable, "-c", _POOL_PROGRAM, str(devices)], env=env, capture_output=True,
+                             text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"a batched Cholesky on {devices} host device(s) hung (jaxlib's ParallelBatchMap deadlock)")
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.splitlines()[-1].split() == [str(devices), str(pool)]  # devices, XLA pool workers

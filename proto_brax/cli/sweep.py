@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> None:
         validate_args(args)  # before any backend starts
         # Before JAX initializes its backend: host devices for sharding on CPU, and the scheduler fix MJX needs.
         from proto_brax import envs
-        from proto_brax.train.grid import use_host_devices
+        from proto_brax.train.grid import cpu_pool_threads, use_host_devices
 
         if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":
             os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
@@ -102,6 +102,7 @@ def main(argv: list[str] | None = None) -> None:
                 import jax
 
                 jax.config.update("jax_num_cpu_devices", args.devices)
+                os.environ.setdefault("NPROC", str(cpu_pool_threads(args.devices)))
             start_distributed(args)
         else:
             use_host_devices(args.devices)

@@ -126,7 +126,23 @@ def use_host_devices(n: int | None = None) -> int:
         jax.config.update("jax_num_cpu_devices", n)
     except RuntimeError:  # backends already initialized: keep what exists
         pass
+    else:
+        os.environ.setdefault("NPROC", str(cpu_pool_threads(n)))  # read when the backend starts, just below
     return len(jax.devices())
+
+
+def cpu_pool_threads(devices: int) -> int:
+    """Threads for XLA's CPU intra-op pool beside ``devices`` host devices (``$NPROC``, which XLA's CPU client reads
+    when its backend starts, taking the larger of it and the device count; else it takes the core count).
+
+    jaxlib's batched LAPACK kernels (Cholesky, triangular solve: MJX factors every env's mass matrix, and with the
+    Newton solver its constraint Hessian, this way) split a batch worth more than ~2·10⁵ flops into chunks scheduled
+    on that pool, then block until the chunks are done. Each device's program runs on a pool worker, so when every
+    worker is such a blocked kernel nobody runs the chunks: a 5-seed pen sweep hung so, on one device and on two
+    (docs/MEASUREMENTS.md#adroit). With one thread jaxlib never splits (it runs the batch inline), so one device gets
+    one thread; several devices get one spare worker for the chunks (``tests/test_engine.py`` hangs without it).
+    """
+    return 1 if devices == 1 else devices + 1
 
 
 @dataclasses.dataclass(frozen=True)
