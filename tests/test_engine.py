@@ -454,7 +454,7 @@ def test_evaluation_stops_when_every_episode_has_ended_with_the_full_horizons_re
 _POOL_PROGRAM = """
 import collections, os, sys
 from proto_brax.train.grid import use_host_devices
-n_dev = use_host_devices(int(sys.argv[1]))
+n_dev = use_host_devices(int(sys.argv[1]), spare_worker=True)
 import jax, jax.numpy as jnp
 from jax.sharding import NamedSharding, PartitionSpec as P
 def f(x):

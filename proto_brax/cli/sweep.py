@@ -95,17 +95,20 @@ def main(argv: list[str] | None = None) -> None:
         from proto_brax import envs
         from proto_brax.train.grid import cpu_pool_threads, use_host_devices
 
-        if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":
+        mjx = (args.backend or envs.get_spec(args.env).default_backend) == "mjx"
+        if mjx:
             os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
         if args.distributed or args.coordinator is not None:
             if args.devices is not None:  # (use_host_devices would start the backend: initialize() must come first)
                 import jax
 
                 jax.config.update("jax_num_cpu_devices", args.devices)
-                os.environ.setdefault("NPROC", str(cpu_pool_threads(args.devices)))
+                threads = cpu_pool_threads(args.devices, spare_worker=mjx)
+                if threads is not None:
+                    os.environ.setdefault("NPROC", str(threads))
             start_distributed(args)
         else:
-            use_host_devices(args.devices)
+            use_host_devices(args.devices, spare_worker=mjx)
         run_sweep(args)
 
     exit_on_input_error(run, argv)

@@ -113,8 +113,9 @@ def host_gather(tree):
     return jax.device_get(tree)
 
 
-def use_host_devices(n: int | None = None) -> int:
-    """Expose ``n`` (default: one per core) CPU devices so a grid can be sharded across cores.
+def use_host_devices(n: int | None = None, spare_worker: bool = False) -> int:
+    """Expose ``n`` (default: one per core) CPU devices so a grid can be sharded across cores, and size XLA's CPU
+    pool beside them (``cpu_pool_threads``; ``spare_worker`` where the program runs batched LAPACK kernels: MJX).
 
     Must run before JAX initializes its backends (an entry point calls it first); a no-op with a warning-free return
     of the current count when the backend already exists or when a GPU/TPU is present.
@@ -127,22 +128,27 @@ def use_host_devices(n: int | None = None) -> int:
     except RuntimeError:  # backends already initialized: keep what exists
         pass
     else:
-        os.environ.setdefault("NPROC", str(cpu_pool_threads(n)))  # read when the backend starts, just below
+        threads = cpu_pool_threads(n, spare_worker)
+        if threads is not None:
+            os.environ.setdefault("NPROC", str(threads))  # read when the backend starts, just below
     return len(jax.devices())
 
 
-def cpu_pool_threads(devices: int) -> int:
-    """Threads for XLA's CPU intra-op pool beside ``devices`` host devices (``$NPROC``, which XLA's CPU client reads
-    when its backend starts, taking the larger of it and the device count; else it takes the core count).
+def cpu_pool_threads(devices: int, spare_worker: bool = False) -> int | None:
+    """Threads for XLA's CPU intra-op pool beside ``devices`` host devices: ``$NPROC``, which XLA's CPU client reads
+    when its backend starts, taking the larger of it and the device count (None: leave XLA's default, the core count).
 
     jaxlib's batched LAPACK kernels (Cholesky, triangular solve: MJX factors every env's mass matrix, and with the
     Newton solver its constraint Hessian, this way) split a batch worth more than ~2·10⁵ flops into chunks scheduled
-    on that pool, then block until the chunks are done. Each device's program runs on a pool worker, so when every
-    worker is such a blocked kernel nobody runs the chunks: a 5-seed pen sweep hung so, on one device and on two
-    (docs/MEASUREMENTS.md#adroit). With one thread jaxlib never splits (it runs the batch inline), so one device gets
-    one thread; several devices get one spare worker for the chunks (``tests/test_engine.py`` hangs without it).
+    on that pool whenever it has more than one thread, then block until the chunks are done. The device programs run
+    on the pool's workers, so when every worker is such a blocked kernel nobody runs the chunks: a 5-seed pen sweep
+    hung so, on one device and on two (docs/MEASUREMENTS.md#adroit). One device gets one thread, where jaxlib never
+    splits. Several devices get one spare worker for the chunks with ``spare_worker`` (``tests/test_engine.py`` hangs
+    without it); elsewhere XLA's default, as a spare worker measured ~10% fewer updates/s on Brax hopper (noisy).
     """
-    return 1 if devices == 1 else devices + 1
+    if devices == 1:
+        return 1
+    return devices + 1 if spare_worker else None
 
 
 @dataclasses.dataclass(frozen=True)
