@@ -490,3 +490,15 @@ def test_batched_lapack_kernels_finish_on_the_host_devices_the_sweep_uses(device
         pytest.fail(f"a batched Cholesky on {devices} host device(s) hung (jaxlib's ParallelBatchMap deadlock)")
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.splitlines()[-1].split() == [str(devices), str(pool)]  # devices, XLA pool workers
+
+
+def test_pretraining_on_mjx_gets_a_one_thread_pool():
+    """``python -m proto_brax.pretrain`` evaluates batched MJX episodes on one device: it asks for one pool thread
+    (``cpu_pool_threads(1)``) exactly when the bundle's env steps on MJX, known before JAX starts."""
+    from proto_brax.cli.pretrain import _runs_mjx
+    from proto_brax.experiment.pretrain import PretrainArgs
+
+    cases = {("pen-human", None): True, ("hopper-v5-medium", None): True, ("antmaze-umaze-diverse", None): True,
+             ("hopper-medium", None): False, ("/data/x.npz", None): False, ("/data/x.npz", "door"): True,
+             ("/data/x.npz", "walker2d"): False}
+    assert {k: _runs_mjx(PretrainArgs(dataset=k[0], env=k[1])) for k in cases} == cases

@@ -106,4 +106,7 @@ if __name__ == "__main__":
     args = tyro.cli(Args)
     if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":  # before JAX starts its backend
         os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
+        from proto_brax.train.grid import cpu_pool_threads
+
+        os.environ.setdefault("NPROC", str(cpu_pool_threads(1)))  # one device: jaxlib's batched LAPACK never splits
     train_behavior(args)
