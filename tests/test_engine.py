@@ -502,3 +502,23 @@ def test_pretraining_on_mjx_gets_a_one_thread_pool():
              ("hopper-medium", None): False, ("/data/x.npz", None): False, ("/data/x.npz", "door"): True,
              ("/data/x.npz", "walker2d"): False}
     assert {k: _runs_mjx(PretrainArgs(dataset=k[0], env=k[1])) for k in cases} == cases
+
+
+@pytest.mark.parametrize("argv, nproc", [("--env pen --dataset pen-human --devices 2", "3"),
+                                         ("--env pen --dataset pen-human --devices 1", "1"),
+                                         ("--devices 2", "None")])
+def test_the_sweep_sizes_the_pool_for_its_env_and_devices(argv, nproc):
+    """``python -m proto_brax.sweep`` wires ``cpu_pool_threads`` before JAX starts: MJX on two devices gets a spare
+    worker, one device one thread, Brax (the default hopper) XLA's default (no $NPROC). The sweep itself is replaced
+    by a print of $NPROC."""
+    import os
+    import subprocess
+    import sys
+
+    program = ("import os, sys\nimport proto_brax.cli.sweep as s\n"
+               "s.run_sweep = lambda a: print('NPROC', os.environ.get('NPROC'))\ns.main(sys.argv[1:])\n")
+    env = {k: v for k, v in os.environ.items() if k != "NPROC"}
+    out = subprocess.run([sys.executable, "-c", program, *argv.split()], env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.splitlines()[-1] == f"NPROC {nproc}"
