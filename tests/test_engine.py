@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -478,10 +481,6 @@ def test_batched_lapack_kernels_finish_on_the_host_devices_the_sweep_uses(device
     """Regression for the Adroit sweep's deadlock: jaxlib's batched Cholesky, run on an XLA pool worker, splits its
     batch onto the same pool and waits; with two devices and XLA's default pool (one worker per device, both blocked
     so) this program hung in 3 runs of 3 before ``use_host_devices`` sized the pool (``grid.cpu_pool_threads``)."""
-    import os
-    import subprocess
-    import sys
-
     env = {k: v for k, v in os.environ.items() if k not in ("NPROC", "XLA_FLAGS")}
     try:
         out = subprocess.run([sys.executable, "-c", _POOL_PROGRAM, str(devices)], env=env, capture_output=True,
@@ -511,10 +510,6 @@ def test_the_sweep_sizes_the_pool_for_its_env_and_devices(argv, nproc):
     """``python -m proto_brax.sweep`` wires ``cpu_pool_threads`` before JAX starts: MJX on two devices gets a spare
     worker, one device one thread, Brax (the default hopper) XLA's default (no $NPROC). The sweep itself is replaced
     by a print of $NPROC."""
-    import os
-    import subprocess
-    import sys
-
     program = ("import os, sys\nimport proto_brax.cli.sweep as s\n"
                "s.run_sweep = lambda a: print('NPROC', os.environ.get('NPROC'))\ns.main(sys.argv[1:])\n")
     env = {k: v for k, v in os.environ.items() if k != "NPROC"}

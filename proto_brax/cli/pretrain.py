@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-import os
 import sys
 
 import tyro
@@ -29,9 +28,9 @@ def main(argv: list[str] | None = None) -> None:
         refuse_repeated(list(sys.argv[1:] if argv is None else argv), ("--hp",))
         args = tyro.cli(PretrainArgs, args=argv)
         if _runs_mjx(args):  # its evaluations batch MJX episodes on one device: one XLA pool thread, before JAX starts
-            from proto_brax.train.grid import cpu_pool_threads  # (its docstring: jaxlib's deadlock)
+            from proto_brax.train.grid import size_cpu_pool  # (grid.cpu_pool_threads: jaxlib's deadlock)
 
-            os.environ.setdefault("NPROC", str(cpu_pool_threads(1)))
+            size_cpu_pool(1)
         return pretrain(args)
 
     exit_on_input_error(run, argv)

@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> None:
         validate_args(args)  # before any backend starts
         # Before JAX initializes its backend: host devices for sharding on CPU, and the scheduler fix MJX needs.
         from proto_brax import envs
-        from proto_brax.train.grid import cpu_pool_threads, use_host_devices
+        from proto_brax.train.grid import size_cpu_pool, use_host_devices
 
         mjx = (args.backend or envs.get_spec(args.env).default_backend) == "mjx"
         if mjx:
@@ -103,9 +103,7 @@ def main(argv: list[str] | None = None) -> None:
                 import jax
 
                 jax.config.update("jax_num_cpu_devices", args.devices)
-                threads = cpu_pool_threads(args.devices, spare_worker=mjx)
-                if threads is not None:
-                    os.environ.setdefault("NPROC", str(threads))
+                size_cpu_pool(args.devices, spare_worker=mjx)
             start_distributed(args)
         else:
             use_host_devices(args.devices, spare_worker=mjx)

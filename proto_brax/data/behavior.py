@@ -106,7 +106,7 @@ if __name__ == "__main__":
     args = tyro.cli(Args)
     if (args.backend or envs.get_spec(args.env).default_backend) == "mjx":  # before JAX starts its backend
         os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
-        from proto_brax.train.grid import cpu_pool_threads
+        from proto_brax.train.grid import size_cpu_pool
 
-        os.environ.setdefault("NPROC", str(cpu_pool_threads(1)))  # one device: jaxlib's batched LAPACK never splits
+        size_cpu_pool(1)  # one device: jaxlib's batched LAPACK never splits (grid.cpu_pool_threads)
     train_behavior(args)

@@ -128,10 +128,18 @@ def use_host_devices(n: int | None = None, spare_worker: bool = False) -> int:
     except RuntimeError:  # backends already initialized: keep what exists
         pass
     else:
-        threads = cpu_pool_threads(n, spare_worker)
-        if threads is not None:
-            os.environ.setdefault("NPROC", str(threads))  # read when the backend starts, just below
+        size_cpu_pool(n, spare_worker)  # read when the backend starts, just below
     return len(jax.devices())
+
+
+def size_cpu_pool(devices: int, spare_worker: bool = False) -> None:
+    """Set ``$NPROC`` to ``cpu_pool_threads(devices, spare_worker)`` unless the user set it (or leave XLA's default);
+    before JAX starts its backend."""
+    import os
+
+    threads = cpu_pool_threads(devices, spare_worker)
+    if threads is not None:
+        os.environ.setdefault("NPROC", str(threads))
 
 
 def cpu_pool_threads(devices: int, spare_worker: bool = False) -> int | None:
