@@ -6,6 +6,8 @@
     python benchmarks/locomotion.py run --datasets hopper-medium --methods proto-sac frozen
     python benchmarks/locomotion.py run --methods ablate-tau ablate-eta   # the appendix's τ and η ablations
     python benchmarks/locomotion.py status                  # what is done, running or missing
+    python benchmarks/locomotion.py run --per-seed --seeds 0 1 --methods rlpd-utd1 --datasets halfcheetah-medium
+                                         # seed by seed: each part lands alone, merged once seeds 0-4 are in
 
 Each (dataset, method) is one ``python -m proto_brax.sweep --preset paper-mujoco-100k --algo METHOD`` over the seeds,
 with the online budget ``--steps`` (α annealed over the same fraction of the run as the paper's 10⁶: the annealing
@@ -57,7 +59,13 @@ class Args:
     """Default: the domain's (locomotion: the paper's methods and the ablations)."""
     ablation_datasets: tuple[str, ...] = ("hopper-medium", "walker2d-medium", "halfcheetah-medium")
     """Where ``ablate-tau`` / ``ablate-eta`` run (the paper's appendix ablates on three datasets)."""
-    seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
+    seeds: tuple[int, ...] = plan.SEEDS
+    """The seeds to run (with ``--per-seed``: the parts this runner makes; another runner may make the others)."""
+    per_seed: bool = False
+    """Run each seed as its own one-run sweep (a part), published under ``results/DATASET/METHOD/parts/seed-K`` as
+    soon as it finishes; once the parts of all published seeds (0–4) are in, they are merged into the published sweep
+    (``locomotion_plan.merge_parts``). For sweeps longer than a working session: each part is a fraction of the work
+    and lands on its own. A part is its seed's run of the vmapped grid up to rounding."""
     steps: int | None = None
     """Online budget per run (paper: 10⁶), stated in every summary. Default: the domain's (locomotion and AntMaze 50k,
     Adroit 10k)."""
@@ -87,6 +95,22 @@ def resolve(args: Args) -> Args:
                                results=args.results or ROOT / "benchmarks" / "results" / d.name)
 
 
+def run_and_publish(args: Args, domain: plan.Domain, dataset: str, method: str, out: Path, dst: Path,
+                    seeds: tuple[int, ...]) -> bool:
+    """Run (or resume) one sweep of ``seeds`` into ``out`` unless it finished, and publish it to ``dst``; False if it
+    failed."""
+    if not (out / "summary.json").exists():  # else finished but not published (the runner was stopped)
+        cmd = plan.sweep_command(dataset, method, out, seeds, args.steps, args.eval_every, args.single_core,
+                                 resume=(out / "config.json").exists(), domain=domain,
+                                 report=not args.per_seed)
+        print(f"[{time.strftime('%H:%M:%S')}] {' '.join(cmd[1:])}", flush=True)
+        if subprocess.run(cmd, cwd=ROOT, env=plan.sweep_env(args.single_core)).returncode != 0:
+            print(f"FAILED: {dataset} {method}" + (f" seeds {list(seeds)}" if args.per_seed else ""), flush=True)
+            return False
+    plan.publish(out, dst)
+    return True
+
+
 def main(args: Args) -> None:
     args, domain = resolve(args), plan.DOMAINS[args.domain]
     unknown = [m for m in args.methods if m not in METHODS and m not in ABLATIONS]
@@ -107,15 +131,22 @@ def main(args: Args) -> None:
             plan.copy_shared(src, dst)
             print(f"{dataset} {method}: the same runs as {src.parent.name} (trains on no dataset)", flush=True)
             continue
-        if not (out / "summary.json").exists():  # else finished but not published (the runner was stopped)
-            cmd = plan.sweep_command(dataset, method, out, args.seeds, args.steps, args.eval_every, args.single_core,
-                                     resume=(out / "config.json").exists(), domain=domain)
-            print(f"[{time.strftime('%H:%M:%S')}] {' '.join(cmd[1:])}", flush=True)
-            if subprocess.run(cmd, cwd=ROOT, env=plan.sweep_env(args.single_core)).returncode != 0:
-                print(f"FAILED: {dataset} {method}", flush=True)
+        if args.per_seed:
+            for seed in args.seeds:
+                if not (plan.part_dir(dst, seed) / "summary.json").exists():
+                    run_and_publish(args, domain, dataset, method, plan.part_dir(out, seed),
+                                    plan.part_dir(dst, seed), (seed,))
+            parts = [plan.part_dir(dst, s) for s in plan.SEEDS]
+            if not all((p / "summary.json").exists() for p in parts):
+                print(f"{dataset} {method}: parts published for seeds "
+                      f"{[s for s, p in zip(plan.SEEDS, parts) if (p / 'summary.json').exists()]} of "
+                      f"{list(plan.SEEDS)}; merged once all are in", flush=True)
                 continue
-        plan.publish(out, dst)
-        summary = nan_for_null(json.loads((out / "summary.json").read_text()))  # a diverged run's null
+            plan.merge_parts(parts, dst)
+            print(f"{dataset} {method}: merged the parts of seeds {list(plan.SEEDS)}", flush=True)
+        elif not run_and_publish(args, domain, dataset, method, out, dst, args.seeds):
+            continue
+        summary = nan_for_null(json.loads((dst / "summary.json").read_text()))  # a diverged run's null
         for point in summary["points"]:
             where = " ".join(f"{k} {point[k]:g}" for k in summary["grid_keys"])
             print(f"  {where}: final normalized {point['final_normalized_score']['mean']:.1f} ± "

@@ -3,16 +3,19 @@ drop/final, claims verdicts, gzip metrics, PNG."""
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import importlib
 import importlib.util
 import json
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from proto_brax import sweep
 from proto_brax.analysis import locomotion_plan, report
 from proto_brax.checkpoints import bundle_dataset_record
 
@@ -308,6 +311,90 @@ def test_locomotion_publish_copies_a_finished_sweep_reproducibly(tmp_path):
     locomotion_plan.publish(src, dst)
     assert (dst / "metrics.jsonl.gz").read_bytes() == first
     assert sorted(p.name for p in dst.iterdir()) == ["config.json", "metrics.jsonl.gz", "report", "summary.json"]
+
+
+def one_seed_part(root: Path, seed: int, rate: float, content_hash: str = "ab", lr: float = 3e-4) -> Path:
+    """A published one-seed part (``locomotion.py run --per-seed``): the rows of ``publish``'s proto-sac sweep for
+    ``seed`` (run 0), its grid point, its layout and its dataset build."""
+    d = publish(root / f"seed{seed}" / "hopper-medium", "x", "proto-sac", seeds=(seed,))
+    rows = [json.loads(line) for line in gzip.decompress((d / "metrics.jsonl.gz").read_bytes()).decode().splitlines()]
+    with gzip.open(d / "metrics.jsonl.gz", "wt") as f:
+        f.write("".join(json.dumps({**r, "grid_updates_per_s": rate}) + "\n" for r in rows))
+    point = {"tau": 0.005, "eta": 0.9, "alpha0": 2.0, "seed": seed}
+    config = {"sweep": {"env": "hopper", "algo": "proto-sac", "seeds": [seed], "lr": lr}, "grid": [point],
+              "layout": {"devices": 1, "runs_per_device": 1}, "dataset_metadata": {"content_hash": content_hash,
+                                                                                 "seconds": 10.0 + seed}}
+    (d / "config.json").write_text(json.dumps(config))
+    (d / "summary.json").write_text(json.dumps({"env": "hopper", "steps": STEPS[-1], "grid_keys": ["tau"],
+                                                "method": "proto-sac", "first_chunk_seconds_incl_compile": 60.0 + seed,
+                                                "points": []}))
+    return d
+
+
+def test_one_seed_parts_merge_into_the_sweep_their_seeds_make_together(tmp_path):
+    """``locomotion_plan.merge_parts``: the parts' rows renumbered by seed give the summary that the same rows run as
+    one grid give (``publish`` of seeds 0-2); the config lists the grid in seed order and where each part ran; the
+    report's cost is per run (each part's program ran one run); parts that differ in a setting or a dataset build, or
+    repeat a seed, are refused before anything is written."""
+    from proto_brax.experiment.summary import summarize_runs
+
+    parts = [one_seed_part(tmp_path / "parts", s, rate) for s, rate in ((2, 30.0), (0, 10.0), (1, 20.0))]
+    dst = tmp_path / "results" / "hopper-medium" / "proto-sac"
+    summary = locomotion_plan.merge_parts(parts, dst)
+    together = publish(tmp_path / "together", "hopper-medium", "proto-sac", seeds=(0, 1, 2))
+    want = report.load_sweep(together).rows
+    assert summary["points"] == summarize_runs(want, ["tau"]) and summary["points"][0]["seeds"] == [0, 1, 2]
+    assert json.loads((dst / "summary.json").read_text())["first_chunk_seconds_incl_compile"] == 62.0
+    merged = report.load_sweep(dst)
+    assert [(r.run, r.seed) for r in merged.runs] == [(0, 0), (1, 1), (2, 2)]
+    assert [r.rows for r in merged.runs] == [[{**x, "grid_updates_per_s": rate} for x in r.rows]
+                                             for r, rate in zip(report.load_sweep(together).runs, (10.0, 20.0, 30.0))]
+    config = json.loads((dst / "config.json").read_text())
+    assert [p["seed"] for p in config["grid"]] == config["sweep"]["seeds"] == [0, 1, 2]
+    assert [m["first_chunk_seconds_incl_compile"] for m in config["merged_from"]] == [60.0, 61.0, 62.0]
+    cost = report.cost(merged)
+    assert cost["updates_per_s"] == 20.0 and cost["updates_per_s_per_run"] == 20.0  # the parts' mean, per run
+    assert (dst / "report" / "curves.png").exists()
+    # refused: another dataset build, another setting, a repeated seed; nothing written
+    for odd, why in ((one_seed_part(tmp_path / "odd", 3, 1.0, content_hash="cd"), "dataset_content_hash"),
+                     (one_seed_part(tmp_path / "odd2", 3, 1.0, lr=1e-3), "sweep"),
+                     (parts[0], "repeat a seed")):
+        with pytest.raises(ValueError, match=why):
+            locomotion_plan.merge_parts([*parts, odd], tmp_path / "refused")
+        assert not (tmp_path / "refused").exists()
+
+
+def test_the_runner_runs_seed_by_seed_and_merges_when_all_parts_are_in(tmp_path, capsys, monkeypatch):
+    """``locomotion.py run --per-seed``: one-run sweeps (``--seeds K``, no report) into runs/.../parts/seed-K,
+    each published as it finishes; merged into the sweep once seeds 0-4 are in, not before."""
+    loco = load_module("locomotion")
+    ran = []
+
+    def fake_run(cmd, cwd, env):  # the sweep: leaves a finished one-seed sweep in --out
+        args = sweep.parse_args(cmd[3:])
+        assert args.seeds == (args.seeds[0],) and not args.report
+        part = one_seed_part(tmp_path / "made", args.seeds[0], 5.0)
+        out = Path(args.out)
+        out.mkdir(parents=True)
+        for f in ("config.json", "summary.json"):
+            shutil.copy(part / f, out / f)
+        (out / "metrics.jsonl").write_bytes(gzip.decompress((part / "metrics.jsonl.gz").read_bytes()))
+        ran.append(args.seeds[0])
+        return subprocess.CompletedProcess(cmd, 0)
+
+    monkeypatch.setattr(loco.subprocess, "run", fake_run)
+    args = loco.Args(datasets=("hopper-medium",), methods=("sac-scratch",), runs=tmp_path / "runs",
+                     results=tmp_path / "results", per_seed=True, seeds=(3, 1))
+    dst = tmp_path / "results" / "hopper-medium" / "sac-scratch"
+    loco.main(args)
+    assert ran == [3, 1] and not (dst / "summary.json").exists()
+    assert (locomotion_plan.part_dir(dst, 3) / "summary.json").exists()
+    assert "parts published for seeds [1, 3] of [0, 1, 2, 3, 4]" in capsys.readouterr().out
+    assert "parts of seeds [1, 3]" in locomotion_plan.sweep_status("hopper-medium", "sac-scratch", args.runs,
+                                                                   args.results, tmp_path)
+    loco.main(dataclasses.replace(args, seeds=(0, 1, 2, 3, 4)))  # the other runner: 1 and 3 are not rerun
+    assert ran == [3, 1, 0, 2, 4] and (dst / "summary.json").exists()
+    assert json.loads((dst / "config.json").read_text())["sweep"]["seeds"] == [0, 1, 2, 3, 4]
 
 
 def test_locomotion_queue_runs_the_ablations_only_on_their_datasets():

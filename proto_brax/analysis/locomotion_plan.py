@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import gzip
+import json
 import os
 import shutil
 import sys
@@ -14,7 +15,7 @@ from pathlib import Path
 
 from proto_brax.agents.registry import METHODS, Method, pretrain_flags
 from proto_brax.experiment.args import PRESETS
-from proto_brax.files import atomic_write, copy_atomic
+from proto_brax.files import atomic_write, copy_atomic, nan_for_null
 
 DATASETS = tuple(f"{env}-{kind}" for env in ("hopper", "walker2d", "halfcheetah", "ant")
                  for kind in ("medium", "medium-replay", "random"))
@@ -89,7 +90,7 @@ def planned_sweeps(datasets: tuple[str, ...], methods: tuple[str, ...],
 
 
 def sweep_command(dataset: str, method: str, out: Path, seeds: tuple[int, ...], steps: int, eval_every: int,
-                  single_core: bool, resume: bool, domain: Domain = LOCOMOTION) -> list[str]:
+                  single_core: bool, resume: bool, domain: Domain = LOCOMOTION, report: bool = True) -> list[str]:
     """``python -m proto_brax.sweep`` of one (dataset, method) into ``out``: the domain's preset, the online budget
     ``steps`` (α annealed over all of it where the domain says so), the ablation's two values, the dataset (unless the
     method trains on none)."""
@@ -110,6 +111,8 @@ def sweep_command(dataset: str, method: str, out: Path, seeds: tuple[int, ...], 
             cmd += ["--dataset-size", str(domain.dataset_size)]
     if single_core:
         cmd += ["--devices", "1"]
+    if not report:  # a one-seed part: its merged sweep gets the report
+        cmd += ["--no-report"]
     return cmd + (["--resume"] if resume else [])
 
 
@@ -155,6 +158,87 @@ def publish(src: Path, dst: Path) -> None:
     copy_atomic(src / "summary.json", dst / "summary.json")
 
 
+SEEDS = (0, 1, 2, 3, 4)  # the published sweeps' seeds; a sweep run seed by seed is merged once all of them are in
+# What one-seed parts of one sweep may differ in: their seed and where and how they ran. Everything else in their
+# configs (the method, every hyper-parameter, the bundle, the dataset's content hash) must agree.
+PART_FIELDS = ("grid", "layout", "dataset_metadata", "merged_from")
+
+
+def part_dir(sweep: Path, seed: int) -> Path:
+    """Where the one-seed part ``seed`` of the sweep ``sweep`` (a working or a published directory) lives."""
+    return sweep / "parts" / f"seed-{seed}"
+
+
+def _part(path: Path) -> tuple[dict, dict, list[dict]]:
+    config = json.loads((path / "config.json").read_text())
+    summary = json.loads((path / "summary.json").read_text())
+    text = gzip.decompress((path / "metrics.jsonl.gz").read_bytes()).decode()
+    rows = [nan_for_null(json.loads(line)) for line in text.splitlines() if line.strip()]
+    seeds = sorted({p["seed"] for p in config.get("grid", [])})
+    if len(config.get("grid", [])) != 1 or len(seeds) != 1:
+        raise ValueError(f"{path} is not a one-seed part (its grid has {len(config.get('grid', []))} runs): parts "
+                         "come from `benchmarks/locomotion.py run --per-seed`.")
+    return config, summary, rows
+
+
+def merge_parts(parts: list[Path], dst: Path) -> dict:
+    """Publish the one-seed sweeps ``parts`` (published by ``publish``) as one sweep at ``dst``, as if its seeds had
+    run in one grid: config.json (the parts' shared config, their grid points in seed order, and ``merged_from``:
+    each part's seed, layout and compile time), metrics.jsonl.gz (each part's rows, ``run`` renumbered by seed),
+    summary.json (``summarize_runs`` over the merged rows) and the PNG report; summary.json last.
+
+    A part is the same run as its seed inside a vmapped grid, up to the rounding of batched matmuls
+    (``test_vmapped_grid_run_equals_single_run``). Parts whose configs differ beyond ``PART_FIELDS`` (another
+    hyper-parameter, bundle or dataset build) or that repeat a seed are refused before anything is written."""
+    from proto_brax.experiment.summary import summarize_runs
+    from proto_brax.files import strict_json, write_json_atomic
+
+    loaded = sorted((_part(p) + (p,) for p in parts), key=lambda x: x[0]["grid"][0]["seed"])
+    seeds = [c["grid"][0]["seed"] for c, *_ in loaded]
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"parts {[str(p) for *_, p in loaded]} repeat a seed ({seeds}): merge distinct seeds.")
+    first = loaded[0][0]
+
+    def shared(config: dict) -> dict:
+        out = {k: v for k, v in config.items() if k not in PART_FIELDS}
+        out["sweep"] = {k: v for k, v in config.get("sweep", {}).items() if k != "seeds"}
+        out["dataset_content_hash"] = (config.get("dataset_metadata") or {}).get("content_hash")
+        return out
+
+    for config, _, _, path in loaded[1:]:
+        a, b = shared(first), shared(config)
+        if a != b:
+            keys = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+            raise ValueError(f"{path} differs from {loaded[0][3]} in {keys}: parts of one sweep must share every "
+                             "setting, bundle and dataset build; rerun the odd part.")
+    rows = []
+    for run, (_, _, part_rows, _) in enumerate(loaded):
+        rows += [{**r, "run": run} for r in part_rows]
+    config = {**first, "grid": [c["grid"][0] for c, *_ in loaded],
+              "sweep": {**first.get("sweep", {}), "seeds": seeds},
+              "layout": {"runs_per_program": 1, "parts": len(loaded)},
+              "merged_from": [{"seed": s, "layout": c.get("layout"),
+                               "first_chunk_seconds_incl_compile": summ.get("first_chunk_seconds_incl_compile")}
+                              for s, (c, summ, _, _) in zip(seeds, loaded)]}
+    head = loaded[0][1]
+    grid_keys = head.get("grid_keys", ["tau"])
+    compile_s = [m["first_chunk_seconds_incl_compile"] for m in config["merged_from"]
+                 if m["first_chunk_seconds_incl_compile"] is not None]
+    summary = {**head, "points": summarize_runs(rows, grid_keys),
+               "first_chunk_seconds_incl_compile": max(compile_s) if compile_s else None}
+    dst.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(dst / "config.json", config)
+    text = "".join(json.dumps(strict_json(r)) + "\n" for r in rows)
+    with atomic_write(dst / "metrics.jsonl.gz", "wb") as raw, \
+            gzip.GzipFile(fileobj=raw, mode="wb", filename="", mtime=0) as g:
+        g.write(text.encode())
+    from proto_brax.analysis.report import make_report
+
+    make_report([dst], dst / "report", verbose=False)
+    write_json_atomic(dst / "summary.json", strict_json(summary))
+    return summary
+
+
 def shared_sweep(dataset: str, method: str, results: Path, domain: Domain = LOCOMOTION) -> Path | None:
     """A published sweep (under ``results``) of a dataset-free method on another dataset of the same env, which this
     dataset shares."""
@@ -187,4 +271,7 @@ def sweep_status(dataset: str, method: str, runs: Path, results: Path, pretraine
         return "needs bundle: " + need
     if (shared := shared_sweep(dataset, method, results, domain)) is not None:
         return f"shared: copies {shared.parent.name}'s on run"
+    parts = [s for s in SEEDS if (part_dir(results / dataset / method, s) / "summary.json").exists()]
+    if parts:
+        return f"parts of seeds {parts} published (of {list(SEEDS)})"
     return "started" if (runs / dataset / method).exists() else "pending"

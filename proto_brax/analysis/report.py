@@ -237,20 +237,26 @@ def heatmap(sweep: Sweep) -> dict:
 
 
 def cost(sweep: Sweep) -> dict:
-    """Grid throughput: updates/s as the mean of grid_updates_per_s over chunks after the first (compilation)."""
-    per_chunk: dict[int, float] = {}
+    """Grid throughput: updates/s as the mean of grid_updates_per_s over chunks after the first (compilation).
+
+    A sweep merged from one-seed parts (``locomotion_plan.merge_parts``; its layout says ``runs_per_program`` 1) ran
+    as one-run programs: a chunk's rate is the mean over its parts, and it is the rate per run."""
+    by_chunk: dict[int, list[float]] = {}
     for row in sweep.rows:
         if int(row["chunk"]) >= 0:  # chunk −1 is π₀'s evaluation at step 0: no updates
-            per_chunk[int(row["chunk"])] = _f(row["grid_updates_per_s"])
+            by_chunk.setdefault(int(row["chunk"]), []).append(_f(row["grid_updates_per_s"]))
+    # a one-program sweep logs one value per chunk (on each run's row): taken as it is, not re-rounded by a mean
+    per_chunk = {c: v[0] if len(set(v)) == 1 else float(np.mean(v)) for c, v in by_chunk.items()}
     chunks = sorted(per_chunk)
     later = [per_chunk[c] for c in chunks[1:] if math.isfinite(per_chunk[c])]
     used = later or [per_chunk[c] for c in chunks[:1] if math.isfinite(per_chunk[c])]
     ups = float(np.mean(used)) if used else float("nan")
     n_runs = len(sweep.runs)
+    per_program = (sweep.config.get("layout") or {}).get("runs_per_program") or n_runs
     return {
         "task": sweep.name, "env": sweep.env, "n_runs": n_runs, "n_chunks": len(chunks),
         "chunks_used": chunks[1:] if later else chunks[:1], "includes_compile": not later,
-        "updates_per_s": ups, "updates_per_s_per_run": ups / n_runs if n_runs else float("nan"),
+        "updates_per_s": ups, "updates_per_s_per_run": ups / per_program if per_program else float("nan"),
         "seconds_per_1e6_updates": 1e6 / ups if ups > 0 else float("nan"),
         "first_chunk_updates_per_s": per_chunk[chunks[0]],
         "first_chunk_seconds_incl_compile": _f((sweep.summary or {}).get("first_chunk_seconds_incl_compile")),
