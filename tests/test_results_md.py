@@ -355,6 +355,8 @@ def test_one_seed_parts_merge_into_the_sweep_their_seeds_make_together(tmp_path)
     cost = report.cost(merged)
     assert cost["updates_per_s"] == 20.0 and cost["updates_per_s_per_run"] == 20.0  # the parts' mean, per run
     assert (dst / "report" / "curves.png").exists()
+    named = load_module().merged_sweeps(load_module().collect(tmp_path / "results", tmp_path / "none"))
+    assert named[0].startswith("**Run seed by seed:** hopper-medium/proto-sac ran each seed")
     # refused: another dataset build, another setting, a repeated seed; nothing written
     for odd, why in ((one_seed_part(tmp_path / "odd", 3, 1.0, content_hash="cd"), "dataset_content_hash"),
                      (one_seed_part(tmp_path / "odd2", 3, 1.0, lr=1e-3), "sweep"),

@@ -257,6 +257,19 @@ def provenance(table, pinned: set[str]) -> list[str]:
             "`benchmarks/results/datasets.json` lists every build (`python benchmarks/datasets_record.py`).", ""]
 
 
+def merged_sweeps(table) -> list[str]:
+    """The published sweeps that ran seed by seed (``locomotion.py run --per-seed``), merged from their parts."""
+    merged = [f"{d}/{m}" for d, per in sorted(table.items()) for m in sorted(per)
+              if per[m]["config"].get("merged_from")]
+    if not merged:
+        return []
+    return [f"**Run seed by seed:** {', '.join(merged)} ran each seed as its own one-run program "
+            "(`benchmarks/locomotion.py run --per-seed`, each part published under `parts/seed-K` of its sweep) and "
+            "were merged once all seeds were in. A part is its seed's run of the vmapped grid up to the rounding of "
+            "batched matmuls (`test_vmapped_grid_run_equals_single_run`); parts must share every setting, the bundle "
+            "and the dataset build (`locomotion_plan.merge_parts`).", ""]
+
+
 def score_cells(runs: list[dict]) -> str:
     """The table cells initial | lowest in first 10% | final mean ± std | final IQM [95% CI] | seeds (over runs; a
     diverged run's non-finite final is left out of the mean and counted)."""
@@ -597,7 +610,7 @@ def render(args: Args) -> tuple[str, str]:
     covered = coverage(table) + td3_fix_status(table, before)  # the page and the README
     claimed = claims(table, claim_cost(args, cost))
     lines += covered
-    lines += provenance(table, pinned_builds(args.record))
+    lines += provenance(table, pinned_builds(args.record)) + merged_sweeps(table)
     lines += claimed
     lines += ["## Aggregate over datasets", "", "`python benchmarks/results_md.py` over every published sweep "
               "(`benchmarks/results/locomotion/aggregate.json` holds the curves).", "",
