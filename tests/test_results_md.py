@@ -496,7 +496,9 @@ def test_pre_fix_proto_td3_sweeps_are_named_and_marked():
     assert rmd.label("proto-td3", table["a-medium"]["proto-td3"], "a-medium", before) == "proto-td3†"
     assert rmd.label("proto-td3", table["b-medium"]["proto-td3"], "b-medium", before) == "proto-td3"
     assert rmd.label("proto-sac", sweep(41.5), "a-medium", before) == "proto-sac"
-    assert rmd.td3_fix_status({"b-medium": {"proto-td3": sweep(47.25)}}, before) == []
+    (done, _), = [rmd.td3_fix_status({"b-medium": {"proto-td3": sweep(47.25)}}, before)]
+    assert done.startswith("**PROTO-TD3 backup fix (issue 35):** all 1 published proto-td3 sweeps ran with the fixed")
+    assert rmd.td3_fix_status({"c-medium": {"proto-sac": sweep(41.5)}}, before) == []  # no proto-td3: nothing to say
 
 
 def test_rounding_check_tells_overlapping_final_cis_from_separate_ones(tmp_path):

@@ -560,8 +560,12 @@ def td3_fix_status(table, before: dict) -> list[str]:
     """How many published proto-td3 sweeps use the fixed backup; the rest are named (marked † in the tables)."""
     sweeps = [d for d, per in sorted(table.items()) if "proto-td3" in per]
     old = [d for d in sweeps if pre_fix_td3(table[d]["proto-td3"], d, before)]
-    if not old:
+    if not sweeps or not before:
         return []
+    if not old:
+        return [f"**PROTO-TD3 backup fix (issue 35):** all {len(sweeps)} published proto-td3 sweeps ran with the fixed "
+                "backup (the penalty on the current actor, α‖π(s′) − π̄(s′)‖²). `FIDELITY.md` sets "
+                "each beside its number before the fix (`benchmarks/results/proto_td3_before_fix.json`).", ""]
     return [f"**PROTO-TD3 backup fix (issue 35):** {len(sweeps) - len(old)} of {len(sweeps)} published proto-td3 "
             f"sweeps ran with the fixed backup (the penalty on the current actor, α‖π(s′) − π̄(s′)‖²). The others "
             f"(marked proto-td3† below: {', '.join(old)}) ran with the old backup, whose penalty was smoothing noise "
