@@ -136,8 +136,11 @@ def test_layout_is_recorded_and_a_resume_with_another_layout_is_refused(tiny_swe
     shutil.copytree(tiny_sweep, other)
     config["layout"] = {**config["layout"], "devices": n + 1}
     (other / "config.json").write_text(json.dumps(config))
-    with pytest.raises(ValueError, match=rf"ran on {n + 1} cpu device.*resume with --devices {n + 1}"):
+    with pytest.raises(ValueError, match=rf"ran on {n + 1} cpu device.*resume with --devices {n + 1} --block vmap"):
         sweep.run_sweep(sweep.SweepArgs(out=other, resume=True, **SMALL))
+    # --block map is part of the layout: a vmapped sweep does not resume as a mapped one
+    with pytest.raises(ValueError, match=r"block vmap\), this process has .* block map\).*--block vmap"):
+        sweep.run_sweep(sweep.SweepArgs(out=tiny_sweep, resume=True, block="map", **SMALL))
 
 
 def test_a_sweep_recorded_before_a_field_existed_resumes_and_a_recorded_difference_is_refused(tiny_sweep, tmp_path):

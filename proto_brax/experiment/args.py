@@ -123,6 +123,11 @@ class SweepArgs:
     devices: int | None = None
     """CPU only: host devices to shard the grid over (default: one per core). The numbers of a run depend on the
     layout (devices, runs per device): --resume refuses another one (docs/RELIABILITY.md)."""
+    block: Literal["vmap", "map"] = "vmap"
+    """How each device runs its runs: ``vmap``, one batched program (for accelerators); ``map``, one run after another
+    through the unbatched program inside the same jitted chunk: on one CPU thread as fast per update as a single run,
+    where a vmap of 5 is slower (docs/MEASUREMENTS.md#run-block). Each gives its own rounding: --resume keeps the
+    one a sweep started with."""
     debug: bool = False
     """Show the full traceback of an input error (also: PROTO_BRAX_DEBUG=1), instead of a one-line message."""
 
@@ -167,8 +172,8 @@ def validate_args(args: SweepArgs) -> None:
 
 
 # Fields of SweepArgs that do not change a run's numbers (not compared by --resume).
-RUN_ONLY_FIELDS = ("out", "overwrite", "resume", "devices", "report", "tensorboard", "distributed", "coordinator",
-                   "num_processes", "process_id", "debug")
+RUN_ONLY_FIELDS = ("out", "overwrite", "resume", "devices", "block", "report", "tensorboard", "distributed",
+                   "coordinator", "num_processes", "process_id", "debug")
 
 
 def sweep_record(args: SweepArgs) -> dict:

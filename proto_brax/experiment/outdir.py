@@ -46,12 +46,13 @@ def not_a_sweep(out: Path) -> str | None:
     return None
 
 
-def layout_record(grid_size: int, devices: list) -> dict:
-    """How the grid is laid out over devices: the numbers of a run depend on it (docs/RELIABILITY.md)."""
+def layout_record(grid_size: int, devices: list, block: str = "vmap") -> dict:
+    """How the grid is laid out over devices and how each device runs its runs (``grid.run_batched``; recorded when
+    not the default vmap): the numbers of a run depend on both (docs/RELIABILITY.md)."""
     n = len(devices)
     padded = -(-grid_size // n) * n
     return {"devices": n, "platform": devices[0].platform, "runs_per_device": padded // n,
-            "padding": padded - grid_size}
+            "padding": padded - grid_size, **({"block": block} if block != "vmap" else {})}
 
 
 def check_out(args: SweepArgs, sweep_cfg: dict, layout: dict | None = None) -> None:
@@ -73,9 +74,11 @@ def check_out(args: SweepArgs, sweep_cfg: dict, layout: dict | None = None) -> N
             if layout is not None and was is not None and was != layout:
                 flag = (f"--devices {was['devices']}" if was.get("platform") == "cpu"
                         else f"{was['devices']} {was.get('platform')} device(s)")
+                flag += f" --block {was.get('block', 'vmap')}"
                 raise ValueError(f"--resume: {out} ran on {was['devices']} {was.get('platform')} device(s) "
-                                 f"({was['runs_per_device']} run(s) each), this process has {layout['devices']} "
-                                 f"({layout['runs_per_device']} each), which gives other numbers: resume with "
+                                 f"({was['runs_per_device']} run(s) each, block {was.get('block', 'vmap')}), this "
+                                 f"process has {layout['devices']} ({layout['runs_per_device']} each, block "
+                                 f"{layout.get('block', 'vmap')}), which gives other numbers: resume with "
                                  f"{flag}.")
         elif not args.overwrite:
             raise FileExistsError(f"{out} exists: pass --resume to continue it, --overwrite to replace it, "

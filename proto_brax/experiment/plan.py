@@ -234,7 +234,7 @@ def plan_sweep(args: SweepArgs) -> Plan:
     import jax
 
     lead = jax.process_index() == 0  # with --distributed, process 0 writes; the others compute their shards
-    layout = {**layout_record(grid.size, jax.devices()), "processes": jax.process_count()}
+    layout = {**layout_record(grid.size, jax.devices(), args.block), "processes": jax.process_count()}
     if lead:  # (another process must not look at --out: process 0 may have created it already)
         check_out(args, sweep_cfg, layout)
     if jax.process_count() > 1 and args.resume:

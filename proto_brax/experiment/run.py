@@ -123,7 +123,7 @@ def execute(plan: Plan) -> float | None:
         finite = [r["eval_return"] for r in rows if np.isfinite(r["eval_return"])]
         bar.set_postfix(eval=f"{np.mean(finite) if finite else float('nan'):.1f}", upd_s=f"{updates_per_s:.0f}")
 
-    program = compile_grid(plan.ft, mesh, plan.per_run)
+    program = compile_grid(plan.ft, mesh, plan.per_run, args.block)
 
     def on_start(stats):
         """π₀ at step 0 (chunk −1): the reference of the initial drop; curves start there."""

@@ -168,32 +168,54 @@ class GridProgram:
     initial_eval: Callable  # state[G] -> EpisodeStats, each [G, eval_episodes], of π₀ (before any online step)
 
 
-def run_batched(fn: Callable, in_axes: tuple) -> Callable:
-    """``fn`` over a block of runs (the arguments with ``in_axes`` 0 carry a leading run axis): ``vmap``, except that a
-    block of ONE run calls ``fn`` on it directly. XLA:CPU runs a batch-of-one vmap of the LayerNorm critics at about
-    half speed, slower than a batch of two (measured 2026-12-06, hopper, SAC from scratch, one run on one device:
-    92 updates/s with LayerNorm vmapped, 135 unbatched; 178 and 200 without LayerNorm)."""
+BLOCKS = ("vmap", "map")  # how a device runs its block of runs (``run_batched``; the sweep's --block)
+
+
+def run_batched(fn: Callable, in_axes: tuple, block: str = "vmap") -> Callable:
+    """``fn`` over a block of runs (the arguments with ``in_axes`` 0 carry a leading run axis).
+
+    ``block="vmap"``: one batched program (the accelerator's way), except that a block of ONE run calls ``fn`` on it
+    directly: XLA:CPU runs a batch-of-one vmap of the LayerNorm critics at about half speed, slower than a batch of
+    two (measured 2026-12-06, hopper, SAC from scratch, one run on one device: 92 updates/s with LayerNorm vmapped,
+    135 unbatched; 178 and 200 without LayerNorm).
+    ``block="map"``: ``lax.map``, the runs one after another through the unbatched program, still inside the one
+    jitted chunk. On one CPU thread this is as fast per update as a single run, where a 5-run vmap is slower
+    (``benchmarks/run_block.py``, docs/MEASUREMENTS.md#run-block), and every run's numbers are its single run's bit
+    for bit."""
+    if block not in BLOCKS:
+        raise ValueError(f"block {block!r}: choose one of {BLOCKS}.")
     vmapped = jax.vmap(fn, in_axes=in_axes)
 
-    def block(*args):
+    def split(args):
+        return [a for a, ax in zip(args, in_axes) if ax == 0], [a for a, ax in zip(args, in_axes) if ax != 0]
+
+    def join(batched, shared):
+        b, s = iter(batched), iter(shared)
+        return [next(b) if ax == 0 else next(s) for ax in in_axes]
+
+    def run_block(*args):
         sizes = {leaf.shape[0] for a, ax in zip(args, in_axes) if ax == 0 for leaf in jax.tree.leaves(a)}
         if sizes != {1}:
+            if block == "map":
+                batched, shared = split(args)
+                return jax.lax.map(lambda xs: fn(*join(xs, shared)), batched)
             return vmapped(*args)
         one = [jax.tree.map(lambda x: x[0], a) if ax == 0 else a for a, ax in zip(args, in_axes)]
         return jax.tree.map(lambda x: jnp.expand_dims(x, 0), fn(*one))
 
-    return block
+    return run_block
 
 
-def on_mesh(fn: Callable, in_axes: tuple, mesh: Mesh) -> Callable:
+def on_mesh(fn: Callable, in_axes: tuple, mesh: Mesh, block: str = "vmap") -> Callable:
     """``run_batched(fn)`` on each device's block of runs (``shard_map``): grid-batched arguments split over the mesh,
     the others whole on every device; every output is per run. (Outputs that depend on shared inputs only, such as a
     chunk's step count, are the same on every device: ``check_vma`` is off so they may be laid out per run.)"""
     specs = tuple(P("grid") if ax == 0 else P() for ax in in_axes)
-    return jax.shard_map(run_batched(fn, in_axes), mesh=mesh, in_specs=specs, out_specs=P("grid"), check_vma=False)
+    return jax.shard_map(run_batched(fn, in_axes, block), mesh=mesh, in_specs=specs, out_specs=P("grid"),
+                         check_vma=False)
 
 
-def compile_grid(ft, mesh: Mesh, per_run_pretrained: bool = False) -> GridProgram:
+def compile_grid(ft, mesh: Mesh, per_run_pretrained: bool = False, block: str = "vmap") -> GridProgram:
     """jit of init and chunk over each device's block of runs (``on_mesh``) with explicit shardings: grid-batched
     values split over ``mesh``, the dataset, the pretrained bundle (unless it holds one entry per run) and the chunk's
     start step replicated. Fixing the output shardings keeps every chunk call on the first compilation (an inferred
@@ -201,14 +223,14 @@ def compile_grid(ft, mesh: Mesh, per_run_pretrained: bool = False) -> GridProgra
     """
     g, r = NamedSharding(mesh, P("grid")), NamedSharding(mesh, P())
     pre_axis, pre_sharding = (0, g) if per_run_pretrained else (None, r)
-    init = jax.jit(on_mesh(ft.init, (0, 0, pre_axis, None), mesh), in_shardings=(g, g, pre_sharding, r),
+    init = jax.jit(on_mesh(ft.init, (0, 0, pre_axis, None), mesh, block), in_shardings=(g, g, pre_sharding, r),
                    out_shardings=g)
     # The state (with its replay buffers) is donated: each chunk updates it in place instead of copying it.
-    chunk = jax.jit(on_mesh(ft.chunk, (0, 0, None, None), mesh), in_shardings=(g, g, r, r),
+    chunk = jax.jit(on_mesh(ft.chunk, (0, 0, None, None), mesh, block), in_shardings=(g, g, r, r),
                     out_shardings=(g, g), donate_argnums=(0,))
     # π₀'s evaluation at step 0 (the reference for the "initial drop"), with a key that the run itself never uses.
-    initial_eval = jax.jit(on_mesh(lambda s: ft.evaluate(s.learner, jax.random.fold_in(s.key, 0x5EED)), (0,), mesh),
-                           in_shardings=(g,), out_shardings=g)
+    initial_eval = jax.jit(on_mesh(lambda s: ft.evaluate(s.learner, jax.random.fold_in(s.key, 0x5EED)), (0,), mesh,
+                                          block), in_shardings=(g,), out_shardings=g)
     return GridProgram(init=init, chunk=chunk, initial_eval=initial_eval)
 
 
@@ -216,7 +238,7 @@ def run_grid(
     ft, grid: Grid, pretrained=None, dataset=None, mesh: Mesh | None = None,
     program: GridProgram | None = None, callback: Callable[[int, dict, Any], None] | None = None,
     restore: Callable[[Any], tuple[Any, int]] | None = None, per_run_pretrained: bool = False,
-    on_start: Callable[[EpisodeStats], None] | None = None,
+    on_start: Callable[[EpisodeStats], None] | None = None, block: str = "vmap",
 ):
     """Run every point of ``grid`` to the end in one compiled program, sharded over ``mesh``.
 
@@ -225,10 +247,10 @@ def run_grid(
     ``callback(chunk_index, metrics, state)`` sees each chunk's host metrics and the (padded, sharded) state, e.g. to
     log and checkpoint; ``restore(initial_state) -> (state, chunks_done)`` resumes an interrupted run;
     ``on_start(stats)`` receives π₀'s step-0 evaluation (``EpisodeStats`` of host arrays [grid.size, eval_episodes];
-    not called on a resume).
+    not called on a resume). ``block``: how each device runs its runs (``run_batched``), when ``program`` is None.
     """
     mesh = mesh or grid_mesh()
-    program = program or compile_grid(ft, mesh, per_run_pretrained)
+    program = program or compile_grid(ft, mesh, per_run_pretrained, block)
     size = padded_size(grid.size, mesh)
     hp = shard(pad_leading(grid.hparams, size), mesh)
     keys = shard(pad_leading(seed_keys(grid.seeds), size), mesh)
