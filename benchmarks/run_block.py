@@ -20,19 +20,16 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
-os.environ.setdefault("NPROC", "1")
+import _quiet  # noqa: F401  (first: the quiet start)
+import jax
+import numpy as np
+import tyro
 
-import _quiet  # noqa: E402,F401  (first: the quiet start)
-import jax  # noqa: E402
-import numpy as np  # noqa: E402
-import tyro  # noqa: E402
-
-from proto_brax.config import FinetuneConfig, NetworkConfig  # noqa: E402
-from proto_brax.envs import host_cpu  # noqa: E402
-from proto_brax.files import write_json_atomic  # noqa: E402
-from proto_brax.train import grid as G  # noqa: E402
-from proto_brax.train import online  # noqa: E402
+from proto_brax.config import FinetuneConfig, NetworkConfig
+from proto_brax.envs import host_cpu, single_thread_xla_flags
+from proto_brax.files import write_json_atomic
+from proto_brax.train import grid as G
+from proto_brax.train import online
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,7 +47,8 @@ class Args:
 def measure(algo: str, runs: int, block: str, args: Args) -> float:
     net = NetworkConfig(critic_layer_norm=True, num_qs=10 if algo == "rlpd" else 2)
     cfg = FinetuneConfig(env="hopper", algo=algo, net=net, steps=args.steps * (args.chunks + 1),
-                         eval_every=args.steps, eval_episodes=1, sampling="online", learning_starts=256)
+                         eval_every=args.steps, eval_episodes=1, sampling="online",
+                         learning_starts=min(256, args.steps))  # warm-up inside the untimed first chunk
     ft = online.make_finetune(cfg)
     grid = G.make_grid({}, seeds=list(range(runs)), base={"alpha0": 0.0}, hparams=ft.hparams)
     times = []
@@ -63,6 +61,9 @@ def measure(algo: str, runs: int, block: str, args: Args) -> float:
 def main(args: Args) -> None:
     """Measure each of ``--algos``; its entry in ``--out`` is replaced, the others' kept (RLPD's 10 critics need
     shorter chunks: ``--algos rlpd --steps 300``)."""
+    # one XLA thread and a one-thread pool, as --devices 1 sweeps run; before JAX starts its backend (measure)
+    os.environ["XLA_FLAGS"] = single_thread_xla_flags()
+    G.size_cpu_pool(1)
     record = json.loads(args.out.read_text()) if args.out.exists() else {"algos": {}}
     for algo in args.algos:
         variants = {"single (1 run, unbatched)": (1, "vmap"), f"vmap ({args.runs} runs)": (args.runs, "vmap"),

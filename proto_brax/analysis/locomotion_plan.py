@@ -5,17 +5,19 @@ publication."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import gzip
 import json
 import os
 import shutil
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 from proto_brax.agents.registry import METHODS, Method, pretrain_flags
 from proto_brax.experiment.args import PRESETS
-from proto_brax.files import atomic_write, copy_atomic, nan_for_null
+from proto_brax.files import atomic_write, copy_atomic
 
 DATASETS = tuple(f"{env}-{kind}" for env in ("hopper", "walker2d", "halfcheetah", "ant")
                  for kind in ("medium", "medium-replay", "random"))
@@ -144,13 +146,19 @@ def missing_bundle(dataset: str, method: str, pretrained: Path, domain: Domain =
             f"checkpoints/pretrained/{dataset}/{kind + m.bundle_suffix}")
 
 
+@contextlib.contextmanager
+def gzip_atomic(path: Path) -> Iterator[gzip.GzipFile]:
+    """Write the gzip file ``path`` atomically, without a name or a time in its header: the same bytes on a rerun."""
+    with atomic_write(path, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", filename="", mtime=0) as g:
+        yield g
+
+
 def publish(src: Path, dst: Path) -> None:
     """Copy a finished sweep ``src`` to the results tree at ``dst``; summary.json goes last, as it marks the sweep
     done."""
     dst.mkdir(parents=True, exist_ok=True)
     copy_atomic(src / "config.json", dst / "config.json")
-    with open(src / "metrics.jsonl", "rb") as f, atomic_write(dst / "metrics.jsonl.gz", "wb") as raw, \
-            gzip.GzipFile(fileobj=raw, mode="wb", filename="", mtime=0) as g:  # mtime 0: same bytes on a rerun
+    with open(src / "metrics.jsonl", "rb") as f, gzip_atomic(dst / "metrics.jsonl.gz") as g:
         shutil.copyfileobj(f, g)
     for f in sorted((src / "report").rglob("*")):  # the sweep's report PNGs (none when it made no report)
         if f.is_file():
@@ -169,16 +177,15 @@ def part_dir(sweep: Path, seed: int) -> Path:
     return sweep / "parts" / f"seed-{seed}"
 
 
-def _part(path: Path) -> tuple[dict, dict, list[dict]]:
-    config = json.loads((path / "config.json").read_text())
-    summary = json.loads((path / "summary.json").read_text())
-    text = gzip.decompress((path / "metrics.jsonl.gz").read_bytes()).decode()
-    rows = [nan_for_null(json.loads(line)) for line in text.splitlines() if line.strip()]
-    seeds = sorted({p["seed"] for p in config.get("grid", [])})
-    if len(config.get("grid", [])) != 1 or len(seeds) != 1:
-        raise ValueError(f"{path} is not a one-seed part (its grid has {len(config.get('grid', []))} runs): parts "
-                         "come from `benchmarks/locomotion.py run --per-seed`.")
-    return config, summary, rows
+def _part(path: Path):
+    """A published one-seed part, read as any sweep (``report.load_sweep``)."""
+    from proto_brax.analysis.report import load_sweep
+
+    sweep = load_sweep(path)
+    if len(sweep.config.get("grid", [])) != 1:
+        raise ValueError(f"{path} is not a one-seed part (its grid has {len(sweep.config.get('grid', []))} runs): "
+                         "parts come from `benchmarks/locomotion.py run --per-seed`.")
+    return sweep
 
 
 def merge_parts(parts: list[Path], dst: Path) -> dict:
@@ -193,11 +200,10 @@ def merge_parts(parts: list[Path], dst: Path) -> dict:
     from proto_brax.experiment.summary import summarize_runs
     from proto_brax.files import strict_json, write_json_atomic
 
-    loaded = sorted((_part(p) + (p,) for p in parts), key=lambda x: x[0]["grid"][0]["seed"])
-    seeds = [c["grid"][0]["seed"] for c, *_ in loaded]
+    loaded = sorted((_part(p) for p in parts), key=lambda sw: sw.config["grid"][0]["seed"])
+    seeds = [sw.config["grid"][0]["seed"] for sw in loaded]
     if len(set(seeds)) != len(seeds):
-        raise ValueError(f"parts {[str(p) for *_, p in loaded]} repeat a seed ({seeds}): merge distinct seeds.")
-    first = loaded[0][0]
+        raise ValueError(f"parts {[str(sw.path) for sw in loaded]} repeat a seed ({seeds}): merge distinct seeds.")
 
     def shared(config: dict) -> dict:
         out = {k: v for k, v in config.items() if k not in PART_FIELDS}
@@ -205,33 +211,28 @@ def merge_parts(parts: list[Path], dst: Path) -> dict:
         out["dataset_content_hash"] = (config.get("dataset_metadata") or {}).get("content_hash")
         return out
 
-    for config, _, _, path in loaded[1:]:
-        a, b = shared(first), shared(config)
-        if a != b:
+    first = loaded[0].config
+    a = shared(first)
+    for sw in loaded[1:]:
+        if a != (b := shared(sw.config)):
             keys = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
-            raise ValueError(f"{path} differs from {loaded[0][3]} in {keys}: parts of one sweep must share every "
+            raise ValueError(f"{sw.path} differs from {loaded[0].path} in {keys}: parts of one sweep must share every "
                              "setting, bundle and dataset build; rerun the odd part.")
-    rows = []
-    for run, (_, _, part_rows, _) in enumerate(loaded):
-        rows += [{**r, "run": run} for r in part_rows]
-    config = {**first, "grid": [c["grid"][0] for c, *_ in loaded],
+    rows = [{**r, "run": run} for run, sw in enumerate(loaded) for r in sw.rows]
+    compile_s = {s: (sw.summary or {}).get("first_chunk_seconds_incl_compile") for s, sw in zip(seeds, loaded)}
+    config = {**first, "grid": [sw.config["grid"][0] for sw in loaded],
               "sweep": {**first.get("sweep", {}), "seeds": seeds},
               "layout": {"runs_per_program": 1, "parts": len(loaded)},
-              "merged_from": [{"seed": s, "layout": c.get("layout"),
-                               "first_chunk_seconds_incl_compile": summ.get("first_chunk_seconds_incl_compile")}
-                              for s, (c, summ, _, _) in zip(seeds, loaded)]}
-    head = loaded[0][1]
-    grid_keys = head.get("grid_keys", ["tau"])
-    compile_s = [m["first_chunk_seconds_incl_compile"] for m in config["merged_from"]
-                 if m["first_chunk_seconds_incl_compile"] is not None]
-    summary = {**head, "points": summarize_runs(rows, grid_keys),
-               "first_chunk_seconds_incl_compile": max(compile_s) if compile_s else None}
+              "merged_from": [{"seed": s, "layout": sw.config.get("layout"),
+                               "first_chunk_seconds_incl_compile": compile_s[s]} for s, sw in zip(seeds, loaded)]}
+    head = loaded[0].summary or {}
+    known = [x for x in compile_s.values() if x is not None]
+    summary = {**head, "points": summarize_runs(rows, head.get("grid_keys", ["tau"])),
+               "first_chunk_seconds_incl_compile": max(known) if known else None}
     dst.mkdir(parents=True, exist_ok=True)
     write_json_atomic(dst / "config.json", config)
-    text = "".join(json.dumps(strict_json(r)) + "\n" for r in rows)
-    with atomic_write(dst / "metrics.jsonl.gz", "wb") as raw, \
-            gzip.GzipFile(fileobj=raw, mode="wb", filename="", mtime=0) as g:
-        g.write(text.encode())
+    with gzip_atomic(dst / "metrics.jsonl.gz") as g:
+        g.write("".join(json.dumps(strict_json(r)) + "\n" for r in rows).encode())
     from proto_brax.analysis.report import make_report
 
     make_report([dst], dst / "report", verbose=False)

@@ -72,14 +72,13 @@ def check_out(args: SweepArgs, sweep_cfg: dict, layout: dict | None = None) -> N
                 raise ValueError(f"--resume: the configuration differs from the one in {out}: {diff}.")
             was = old.get("layout")
             if layout is not None and was is not None and was != layout:
+                block, now = was.get("block", "vmap"), layout.get("block", "vmap")  # recorded when not vmap
                 flag = (f"--devices {was['devices']}" if was.get("platform") == "cpu"
                         else f"{was['devices']} {was.get('platform')} device(s)")
-                flag += f" --block {was.get('block', 'vmap')}"
                 raise ValueError(f"--resume: {out} ran on {was['devices']} {was.get('platform')} device(s) "
-                                 f"({was['runs_per_device']} run(s) each, block {was.get('block', 'vmap')}), this "
-                                 f"process has {layout['devices']} ({layout['runs_per_device']} each, block "
-                                 f"{layout.get('block', 'vmap')}), which gives other numbers: resume with "
-                                 f"{flag}.")
+                                 f"({was['runs_per_device']} run(s) each, block {block}), this process has "
+                                 f"{layout['devices']} ({layout['runs_per_device']} each, block {now}), which gives "
+                                 f"other numbers: resume with {flag} --block {block}.")
         elif not args.overwrite:
             raise FileExistsError(f"{out} exists: pass --resume to continue it, --overwrite to replace it, "
                                   "or choose another --out.")
