@@ -81,8 +81,10 @@ class Args:
     single_core: bool = False
     """Each sweep on one CPU device with one XLA thread (``--devices 1``, ``envs.single_thread_xla_flags``): for two
     runners side by side on a 2-core machine, where two single-threaded processes do more updates per second in total
-    than two sharded ones (FACTS.md) and 5 seeds need no padding run. A started sweep resumes only under the setting
-    it started with (its state's padding follows the device count)."""
+    than two sharded ones (FACTS.md) and 5 seeds need no padding run. Its runs go one after another through the one-run
+    program (``--block map``: 1.25x (SAC) to 1.5x (RLPD) the grid rate of a one-thread vmap, and each run equals its
+    ``--per-seed`` part bit for bit). A started sweep resumes only under the setting it started with (its state's
+    padding follows the device count, its rounding the block)."""
 
 
 def resolve(args: Args) -> Args:

@@ -435,9 +435,10 @@ def test_locomotion_runner_commands_parse(tmp_path):
     assert tau.tau == (0.0025, 0.01) and tau.eta == (0.9,) and eta.eta == (0.8, 1.0) and eta.tau == (0.005,)
     # single_core: one device (5 seeds, no padding run) and one XLA thread for the child
     one = command("hopper-medium", "direct", resume=False, single_core=True)
-    assert sweep.parse_args(one[3:]).devices == 1
+    assert sweep.parse_args(one[3:]).devices == 1 and sweep.parse_args(one[3:]).block == "map"
     assert "--xla_cpu_multi_thread_eigen=false" in plan.sweep_env(single_core=True)["XLA_FLAGS"]
-    assert sweep.parse_args(command("hopper-medium", "direct", resume=False)[3:]).devices is None
+    default = sweep.parse_args(command("hopper-medium", "direct", resume=False)[3:])
+    assert default.devices is None and default.block == "vmap"
     # Adroit and AntMaze (--domain): their preset, env and dataset; α over the paper's 10⁶ horizon, not the budget
     pen = sweep.parse_args(plan.sweep_command("pen-human", "frozen", tmp_path / "p", (0, 1), 50_000, 5_000, False,
                                               False, domain=plan.ADROIT)[3:])

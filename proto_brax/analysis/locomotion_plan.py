@@ -111,8 +111,10 @@ def sweep_command(dataset: str, method: str, out: Path, seeds: tuple[int, ...], 
         cmd += ["--dataset", dataset]
         if domain.dataset_size is not None:
             cmd += ["--dataset-size", str(domain.dataset_size)]
-    if single_core:
-        cmd += ["--devices", "1"]
+    if single_core:  # the runs one after another through the one-run program: a one-thread vmap of 5 is 0.80x
+        # (SAC) to 0.65x (RLPD) of that rate (docs/MEASUREMENTS.md#run-block), and each run is then its one-seed
+        # part's bit for bit
+        cmd += ["--devices", "1", "--block", "map"]
     if not report:  # a one-seed part: its merged sweep gets the report
         cmd += ["--no-report"]
     return cmd + (["--resume"] if resume else [])
