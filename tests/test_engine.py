@@ -526,6 +526,32 @@ def test_pretraining_on_mjx_gets_a_one_thread_pool():
     assert {k: _runs_mjx(PretrainArgs(dataset=k[0], env=k[1])) for k in cases} == cases
 
 
+def test_pretraining_reads_the_env_a_dataset_file_names_for_the_pool(tmp_path, monkeypatch):
+    """A dataset given as a file names its env inside: an .npz's metadata entry and an exported Minari dataset's
+    metadata.json are read (without their rows, before JAX starts), so pretraining on a pen .npz or a door Minari
+    export also gets the one-thread pool; a Brax env's file and an unreadable file do not."""
+    from proto_brax.cli.pretrain import _runs_mjx
+    from proto_brax.data import minari_io
+    from proto_brax.data.dataset import Transition, save_npz
+    from proto_brax.experiment.pretrain import PretrainArgs
+
+    rng = np.random.default_rng(0)
+    n = 6
+    obs = rng.normal(size=(n, 3)).astype(np.float32)
+    data = Transition(observations=obs, actions=rng.uniform(-1, 1, (n, 2)).astype(np.float32),
+                      rewards=rng.normal(size=n).astype(np.float32), next_observations=obs + 1.0,
+                      terminals=np.zeros(n, np.float32), timeouts=np.ones(n, np.float32))
+    save_npz(tmp_path / "pen.npz", data, {"env": "pen"})
+    save_npz(tmp_path / "hop.npz", data, {"env": "hopper"})
+    (tmp_path / "garbled.npz").write_bytes(b"not a zip")
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    door = minari_io.export_minari(data, {}, "toy/door-v0", env="door")
+    walker = minari_io.export_minari(data, {}, "toy/walker-v0", env="walker2d")
+    cases = {str(tmp_path / "pen.npz"): True, str(tmp_path / "hop.npz"): False, str(tmp_path / "garbled.npz"): False,
+             str(door): True, str(door / "data"): True, "toy/door-v0": True, str(walker): False, "toy/none-v0": False}
+    assert {d: _runs_mjx(PretrainArgs(dataset=d)) for d in cases} == cases
+
+
 @pytest.mark.parametrize("argv, nproc", [("--env pen --dataset pen-human --devices 2", "3"),
                                          ("--env pen --dataset pen-human --devices 1", "1"),
                                          ("--devices 2", "None")])

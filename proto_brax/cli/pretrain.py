@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import tyro
 
@@ -13,13 +14,30 @@ from proto_brax.experiment.pretrain import PretrainArgs, pretrain
 from proto_brax.startup import exit_on_input_error, refuse_repeated
 
 
-def _runs_mjx(args: PretrainArgs) -> bool:
-    """Whether the bundle's env (--env, else the registered dataset's) steps on MJX; a dataset file that names its
-    env inside is not opened here (that would start JAX)."""
-    from proto_brax import envs  # here: it imports MJX, after the entry point's quiet start
+def _dataset_env(dataset: str) -> str | None:
+    """The env a dataset names, read without its rows and without starting JAX: a registered name's, an .npz file's
+    metadata entry, an exported Minari dataset's metadata.json; None where only --env can say (a D4RL file, a
+    Farama Minari id) or the file is unreadable (loading it then names the fix)."""
+    from proto_brax.data.cache import cached_metadata
+    from proto_brax.data.dataset import CorruptDatasetError
     from proto_brax.data.generate import dataset_names, parse_name
+    from proto_brax.data.minari_io import exported_env
 
-    env = args.env or (parse_name(args.dataset)[0] if args.dataset in dataset_names() else None)
+    if dataset in dataset_names():
+        return parse_name(dataset)[0]
+    if Path(dataset).suffix == ".npz":
+        try:
+            return cached_metadata(Path(dataset)).get("env") if Path(dataset).is_file() else None
+        except CorruptDatasetError:
+            return None
+    return exported_env(dataset)
+
+
+def _runs_mjx(args: PretrainArgs) -> bool:
+    """Whether the bundle's env (--env, else the one the dataset names) steps on MJX."""
+    from proto_brax import envs  # here: it imports MJX, after the entry point's quiet start
+
+    env = args.env or _dataset_env(str(args.dataset))
     return env in envs.REGISTRY and envs.get_spec(env).default_backend == "mjx"
 
 

@@ -58,6 +58,22 @@ def minari_root(root: str | os.PathLike[str] | None = None) -> Path:
     return Path(os.environ.get(MINARI_ENV) or Path.home() / ".minari" / "datasets")
 
 
+def exported_env(dataset_id_or_path: str | os.PathLike[str]) -> str | None:
+    """The suite env an exported Minari dataset (a directory, or an id under :func:`minari_root`) names in its
+    ``metadata.json``, read as JSON alone (no episode, no minari import); None for any other dataset or path."""
+    path = Path(dataset_id_or_path)
+    for d in (path, path.parent if path.name == "data" else None, minari_root() / path):
+        file = d / "data" / "metadata.json" if d is not None else None
+        if file is not None and file.is_file():
+            try:
+                block = json.loads(file.read_text()).get(METADATA_KEY)
+                block = json.loads(block) if isinstance(block, str) else block
+                return block.get("env") if isinstance(block, dict) else None
+            except (OSError, ValueError, AttributeError):
+                return None  # unreadable here: loading it names the fix
+    return None
+
+
 def default_id(name: str, size: int | None = None, seed: int = 0) -> str:
     """The Minari id a registered dataset is exported under: ``proto_brax/<env>/<kind>-v0`` (size and seed, when not
     the defaults, join the name: ``proto_brax/point/medium-n2000-seed1-v0``)."""
