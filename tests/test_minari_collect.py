@@ -44,6 +44,24 @@ def test_random_collection_is_gymnasiums_hopper_step_for_step(tmp_path):
     assert np.all(np.abs(data.actions) <= 1.0)
 
 
+def test_collect_reads_its_rows_back_once_and_the_summary_checks_them(tmp_path, monkeypatch):
+    """``datasets collect`` read a new dataset three times (hash, re-check, summary); now collect reads it once (the
+    hash) and the summary's read is the first check against that hash."""
+    from proto_brax.data import dataset as ds
+
+    calls = []
+
+    def counted(*a, **k):
+        calls.append(a)
+        return load_minari(*a, **k)
+
+    monkeypatch.setattr(ds, "load_minari", counted)
+    path = mc.collect("hopper-v5", "local/hopper-v5/random-v0", 60, "random", seed=1, root=tmp_path)
+    assert len(calls) == 1
+    s = mc.summary(path)
+    assert len(calls) == 2 and s["transitions"] == 60 and s["content_hash"] == load_minari(path)[1]["content_hash"]
+
+
 def test_same_seed_same_rows_and_nothing_is_overwritten(tmp_path):
     a = mc.collect("hopper-v5", "local/hopper-v5/random-v0", 120, "random", seed=1, root=tmp_path / "a")
     b = mc.collect("hopper-v5", "local/hopper-v5/random-v0", 120, "random", seed=1, root=tmp_path / "b")
