@@ -63,6 +63,9 @@ def main(args: Args) -> dict:
     from proto_brax.envs import machine_info, single_thread_mjx_xla_flags
 
     os.environ["XLA_FLAGS"] = single_thread_mjx_xla_flags()
+    from proto_brax.train.grid import size_cpu_pool
+
+    size_cpu_pool(1)  # one device, one pool thread: batched MJX episodes never split a LAPACK batch onto a blocked pool
 
     from proto_brax.analysis.crosscheck import check_adroit_task  # after XLA_FLAGS, like everything that runs JAX
     from proto_brax.files import write_json_atomic

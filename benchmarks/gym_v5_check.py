@@ -61,6 +61,9 @@ def main(args: Args) -> None:
     from proto_brax import envs
 
     os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()  # before jax starts (FACTS.md: batched MJX hangs without it)
+    from proto_brax.train.grid import size_cpu_pool
+
+    size_cpu_pool(1)  # one device, one pool thread: batched MJX episodes never split a LAPACK batch onto a blocked pool
     import jax
 
     from proto_brax.analysis import crosscheck

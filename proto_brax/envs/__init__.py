@@ -283,6 +283,7 @@ def machine_info() -> dict:
 
     return {"python": platform.python_version(), "cpus": os.cpu_count(), "cpu": host_cpu(), "jax": jax.__version__,
             "mujoco": mujoco.__version__, "xla_flags": os.environ.get("XLA_FLAGS", ""),
+            "xla_pool_threads": os.environ.get("NPROC"),  # $NPROC (grid.size_cpu_pool); None: XLA's default
             "loadavg_start": os.getloadavg()}
 
 
