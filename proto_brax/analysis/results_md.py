@@ -594,6 +594,25 @@ def readme_frame(path: Path) -> tuple[str, str]:
     return head + sep, sep2 + tail
 
 
+def aggregate_table(table, last: str, cell) -> list[str]:
+    """Per method over the datasets it was published on: datasets, runs, final IQM [95% CI], and the column ``last``
+    (``cell`` of the method's runs)."""
+    lines = [f"| method | datasets | runs | final IQM [95% CI] | {last} |", "|---|---|---|---|---|"]
+    for m in methods_in(table):
+        ds, runs = method_runs(table, m)
+        lines.append(f"| {m} | {len(ds)} | {len(runs)} | {ci_str([r['final'] for r in runs])} | {cell(runs)} |")
+    return lines
+
+
+def per_dataset(table, results: Path, before: dict, domain: Domain = LOCOMOTION) -> list[str]:
+    """Each dataset's table, and its curves drawn to ``results/DATASET/curves.png``."""
+    lines = []
+    for d in sorted(d for d, per in table.items() if methods_of(per)):
+        dataset_curves(d, table[d], results / d / "curves.png")
+        lines += dataset_table(d, table[d], before, domain)
+    return lines
+
+
 def render(args: Args) -> tuple[str, str]:
     """RESULTS.md's text and the README's summary block."""
     table = collect(args.results, args.bundles)
@@ -622,16 +641,10 @@ def render(args: Args) -> tuple[str, str]:
               "Each distinct sweep counts once: SAC from scratch trains on no dataset, so its one sweep per env stands "
               "in the table of every dataset of that env. Until every sweep is published the rows cover different "
               "datasets (column 2): compare methods in the claims above (which pair datasets) or per dataset.", "",
-              "| method | datasets | runs | final IQM [95% CI] | lowest-in-first-10% IQM [95% CI] |",
-              "|---|---|---|---|---|"]
-    for m in methods_in(table):
-        ds, runs = method_runs(table, m)
-        lines.append(f"| {m} | {len(ds)} | {len(runs)} | {ci_str([r['final'] for r in runs])} | "
-                     f"{ci_str([r['drop'] for r in runs])} |")
-    lines += ["", "## Per dataset", ""]
-    for d in sorted(d for d, per in table.items() if methods_of(per)):
-        dataset_curves(d, table[d], args.results / d / "curves.png")
-        lines += dataset_table(d, table[d], before)
+              *aggregate_table(table, "lowest-in-first-10% IQM [95% CI]",
+                               lambda runs: ci_str([r["drop"] for r in runs])),
+              "", "## Per dataset", ""]
+    lines += per_dataset(table, args.results, before)
     lines += ablation_tables(table)
     for c in COMPARISONS:
         lines += comparison(table, c)
@@ -681,16 +694,9 @@ def domain_section(domain: Domain, results: Path, bundles: Path) -> list[str]:
     curves = aggregate_curves(table, results / "aggregate.png", f"All {domain.name} datasets")
     write_json_atomic(results / "aggregate.json", curves)
     lines += [f"![{domain.name} aggregate](results/{domain.name}/aggregate.png)", "",
-              "| method | datasets | runs | final IQM [95% CI] | final success IQM [95% CI] |", "|---|---|---|---|---|"]
-    for m in methods_in(table):
-        ds, runs = method_runs(table, m)
-        lines.append(f"| {m} | {len(ds)} | {len(runs)} | {ci_str([r['final'] for r in runs])} | "
-                     f"{success_cell(runs)} |")
-    lines += [""] + claims(table, None, f"### The paper's claims (1) and (2) on {domain.name}")
-    for d in sorted(d for d, per in table.items() if methods_of(per)):
-        dataset_curves(d, table[d], results / d / "curves.png")
-        lines += dataset_table(d, table[d], {}, domain)
-    return lines
+              *aggregate_table(table, "final success IQM [95% CI]", success_cell), ""]
+    lines += claims(table, None, f"### The paper's claims (1) and (2) on {domain.name}")
+    return lines + per_dataset(table, results, {}, domain)
 
 
 def main(args: Args) -> None:
