@@ -8,6 +8,7 @@ import gzip
 import importlib
 import importlib.util
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -579,3 +580,16 @@ def test_other_domains_get_a_section_with_success_rates_and_claims(tmp_path):
     v5 = locomotion_plan.DOMAINS["mujoco-v5"]
     assert v5.datasets[0] == "hopper-v5-medium" and locomotion_plan.env_of(v5.datasets[0]) == "hopper-v5"
     assert "--domain mujoco-v5" in "\n".join(mod.domain_section(v5, tmp_path / "mujoco-v5", tmp_path / "none"))
+
+
+def test_offline_score_reads_the_bundle_the_method_starts_from(tmp_path):
+    """proto-official starts from its eql-official bundle: its offline column is that bundle's score, not eql's (the
+    column showed our eql bundle's 48.9 for proto-official on halfcheetah-medium, whose π₀ scored 44.5)."""
+    mod = load_module("results_md")
+    for kind, score in (("eql", 48.9), ("eql-official", 44.5)):
+        (tmp_path / "d" / kind).mkdir(parents=True)
+        (tmp_path / "d" / kind / "metadata.json").write_text(json.dumps({"offline_eval": {"normalized_score_mean":
+                                                                                          score}}))
+    assert mod.offline_score(tmp_path, "d", "proto-sac") == 48.9
+    assert mod.offline_score(tmp_path, "d", "proto-official") == 44.5
+    assert math.isnan(mod.offline_score(tmp_path, "d", "sac-scratch"))

@@ -99,10 +99,12 @@ def run_scores(sweep: Sweep) -> list[dict]:
 
 
 def offline_score(bundles: Path, dataset: str, method: str) -> float:
-    kinds = method_of(method).bundles
-    if not kinds:
+    """The normalized score of the bundle ``method`` starts from (its kind plus the method's suffix: proto-official's
+    eql-official), as its pretraining evaluated it; NaN without one."""
+    m = method_of(method)
+    if not m.bundles:
         return math.nan
-    meta = bundles / dataset / kinds[0] / "metadata.json"
+    meta = bundles / dataset / (m.bundles[0] + m.bundle_suffix) / "metadata.json"
     if not meta.exists():
         return math.nan
     ev = json.loads(meta.read_text()).get("offline_eval") or {}
