@@ -67,7 +67,7 @@ def bundle_jobs(args: Args) -> list[tuple[str, str, list[str]]]:
     for name in args.methods:
         m = get_method(name)
         extra = pretrain_flags(m.defaults.get("policy", "tanh_gaussian"), m.defaults.get("pretrain_hp"))
-        jobs.append((m.bundles[0], m.bundles[0] + m.bundle_suffix, extra))
+        jobs.append((m.bundles[0], m.auto_bundle, extra))
     return jobs
 
 

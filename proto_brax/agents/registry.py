@@ -61,6 +61,12 @@ class Method:
     hp: dict[str, float] = dataclasses.field(default_factory=dict)  # HParams under the user's --hp
 
     @property
+    def auto_bundle(self) -> str | None:
+        """The bundle directory name ``--checkpoint auto`` starts from under checkpoints/pretrained/DATASET (its first
+        kind plus its suffix: proto-official's ``eql-official``); None for a random-init method."""
+        return self.bundles[0] + self.bundle_suffix if self.bundles else None
+
+    @property
     def uses_dataset(self) -> bool:
         """False for the methods that train on online data only (SAC/TD3 from scratch): any dataset gives the same
         runs."""

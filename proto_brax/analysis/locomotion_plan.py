@@ -139,13 +139,13 @@ def missing_bundle(dataset: str, method: str, pretrained: Path, domain: Domain =
     if not m.bundles:
         return None
     kind = m.bundles[0]  # the bundle kind that --checkpoint auto picks
-    if (pretrained / dataset / (kind + m.bundle_suffix) / "metadata.json").exists():
+    if (pretrained / dataset / m.auto_bundle / "metadata.json").exists():
         return None
     extra = "".join(f" {f}" for f in (*domain.bundle_flags.get(kind, ()),
                                       *pretrain_flags(m.defaults.get("policy", "tanh_gaussian"),
                                                       m.defaults.get("pretrain_hp"))))
     return (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}{extra} --out "
-            f"checkpoints/pretrained/{dataset}/{kind + m.bundle_suffix}")
+            f"checkpoints/pretrained/{dataset}/{m.auto_bundle}")
 
 
 @contextlib.contextmanager

@@ -101,11 +101,9 @@ def run_scores(sweep: Sweep) -> list[dict]:
 def offline_score(bundles: Path, dataset: str, method: str) -> float:
     """The normalized score of the bundle ``method`` starts from (its kind plus the method's suffix: proto-official's
     eql-official), as its pretraining evaluated it; NaN without one."""
-    m = method_of(method)
-    if not m.bundles:
-        return math.nan
-    meta = bundles / dataset / (m.bundles[0] + m.bundle_suffix) / "metadata.json"
-    if not meta.exists():
+    name = method_of(method).auto_bundle
+    meta = bundles / dataset / name / "metadata.json" if name else None
+    if meta is None or not meta.exists():
         return math.nan
     ev = json.loads(meta.read_text()).get("offline_eval") or {}
     return float(ev.get("normalized_score_mean", math.nan))

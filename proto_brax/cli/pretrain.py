@@ -25,12 +25,13 @@ def _dataset_env(dataset: str) -> str | None:
 
     if dataset in dataset_names():
         return parse_name(dataset)[0]
-    if Path(dataset).suffix == ".npz":
-        try:
-            return cached_metadata(Path(dataset)).get("env") if Path(dataset).is_file() else None
-        except CorruptDatasetError:
-            return None
-    return exported_env(dataset)
+    path = Path(dataset)
+    if path.suffix != ".npz":
+        return exported_env(path)
+    try:
+        return cached_metadata(path).get("env") if path.is_file() else None
+    except CorruptDatasetError:
+        return None
 
 
 def _runs_mjx(args: PretrainArgs) -> bool:

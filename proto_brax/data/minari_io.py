@@ -62,9 +62,9 @@ def exported_env(dataset_id_or_path: str | os.PathLike[str]) -> str | None:
     """The suite env an exported Minari dataset (a directory, or an id under :func:`minari_root`) names in its
     ``metadata.json``, read as JSON alone (no episode, no minari import); None for any other dataset or path."""
     path = Path(dataset_id_or_path)
-    for d in (path, path.parent if path.name == "data" else None, minari_root() / path):
-        file = d / "data" / "metadata.json" if d is not None else None
-        if file is not None and file.is_file():
+    for d in (path.parent if path.name == "data" else path, minari_root() / path):  # a directory, else an id
+        file = d / "data" / "metadata.json"
+        if file.is_file():
             try:
                 block = json.loads(file.read_text()).get(METADATA_KEY)
                 block = json.loads(block) if isinstance(block, str) else block

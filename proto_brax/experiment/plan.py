@@ -88,7 +88,7 @@ def resolve_checkpoint(args: SweepArgs) -> Path | None:
                 raise ValueError(f"--algo {args.algo} starts from a {kind} bundle: pass --checkpoint PATH, or a "
                                  f"registered --dataset with a committed bundle.")
             return None
-        auto = REPO_ROOT / "checkpoints" / "pretrained" / dataset / (kind + method.bundle_suffix)
+        auto = REPO_ROOT / "checkpoints" / "pretrained" / dataset / method.auto_bundle
         if (auto / "metadata.json").exists():
             return auto
         if args.pretrain is None:  # (with --pretrain the sweep makes its own bundle)
