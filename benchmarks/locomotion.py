@@ -24,6 +24,11 @@ per env, and its published sweep is copied to the env's other datasets (``result
 The ablations (the paper's appendix: τ ∈ {0.5, 1, 2} × τ₀ and η ∈ {0.8, 0.9, 1.0}) are the pseudo-methods
 ``ablate-tau`` and ``ablate-eta``, run on ``--ablation-datasets`` only: one PROTO-SAC sweep each over the two
 non-default values × the seeds in one vmapped program; the default value is the ``proto-sac`` sweep itself.
+FIDELITY.md's rows are ablated one at a time by the pseudo-methods ``official-but-*`` (``FIDELITY_ABLATIONS``: the
+``proto-official`` sweep with one choice put back to ours), run only when named, on ``--ablation-datasets``:
+
+    python benchmarks/locomotion.py run --per-seed --methods official-but-temperature --ablation-datasets
+        halfcheetah-medium --datasets halfcheetah-medium
 """
 
 from __future__ import annotations
@@ -58,7 +63,8 @@ class Args:
     methods: tuple[str, ...] | None = None
     """Default: the domain's (locomotion: the paper's methods and the ablations)."""
     ablation_datasets: tuple[str, ...] = ("hopper-medium", "walker2d-medium", "halfcheetah-medium")
-    """Where ``ablate-tau`` / ``ablate-eta`` run (the paper's appendix ablates on three datasets)."""
+    """Where the ablations run (the paper's appendix ablates τ and η on three datasets; name the datasets where
+    proto-official separates from PROTO-SAC for the ``official-but-*`` ones)."""
     seeds: tuple[int, ...] = plan.SEEDS
     """The seeds to run (with ``--per-seed``: the parts this runner makes; another runner may make the others)."""
     per_seed: bool = False

@@ -433,6 +433,19 @@ def test_locomotion_runner_commands_parse(tmp_path):
     eta = sweep.parse_args(command("hopper-medium", "ablate-eta", resume=False)[3:])
     assert tau.algo == eta.algo == "proto-sac" and tau.dataset == "hopper-medium" and not tau.resume
     assert tau.tau == (0.0025, 0.01) and tau.eta == (0.9,) and eta.eta == (0.8, 1.0) and eta.tau == (0.005,)
+    # the fidelity ablations: proto-official with one choice put back to ours, the official code's others kept
+    official = sweep.parse_args(command("halfcheetah-medium", "proto-official", resume=False)[3:])
+    temp = sweep.parse_args(command("halfcheetah-medium", "official-but-temperature", resume=False)[3:])
+    start = sweep.parse_args(command("halfcheetah-medium", "official-but-start", resume=False)[3:])
+    state = sweep.parse_args(command("halfcheetah-medium", "official-but-critic-state", resume=False)[3:])
+    actor = sweep.parse_args(command("halfcheetah-medium", "official-but-actor-q", resume=False)[3:])
+    assert temp.algo == start.algo == state.algo == actor.algo == "proto-official" and temp.policy == "gaussian"
+    assert temp.fidelity == dataclasses.replace(official.fidelity, temperature_loss="log_alpha")
+    assert official.fidelity.temperature_loss == "alpha" and official.learning_starts == 1
+    assert start.fidelity == dataclasses.replace(official.fidelity, online_preload=0) and start.learning_starts == 1000
+    assert state.fidelity == dataclasses.replace(official.fidelity, carry_critic_state=False)
+    assert actor.fidelity == dataclasses.replace(official.fidelity, actor_q="backup")
+    assert "official-but-temperature" not in plan.LOCOMOTION.methods  # run only when named
     # single_core: one device (5 seeds, no padding run) and one XLA thread for the child
     one = command("hopper-medium", "direct", resume=False, single_core=True)
     assert sweep.parse_args(one[3:]).devices == 1 and sweep.parse_args(one[3:]).block == "map"

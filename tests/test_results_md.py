@@ -46,7 +46,8 @@ def curve(method: str, seed: int, tau: float = 0.005) -> list[float]:
             "ablate-tau": [30.0, 20.0, 50.0, 80.0 + seed + 1000 * tau],
             "sac-scratch": [1.0, 2.0, 5.0, 10.0 + seed],
             "rlpd-utd1": [10.0, 20.0, 30.0, 40.0 + seed],
-            "proto-official": [28.0 - seed, 50.0, 80.0 + seed, 80.0 + seed]}[method]
+            "proto-official": [28.0 - seed, 50.0, 80.0 + seed, 80.0 + seed],
+            "official-but-temperature": [28.0, 50.0, 60.0, 30.0 + seed]}[method]
 
 
 def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,), hashes=None,
@@ -552,6 +553,25 @@ def test_comparisons_beside_the_papers_pair_datasets_and_say_whether_cis_separat
     empty = "\n".join(mod.comparison(table, mod.COMPARISONS[0]))
     assert ("Not published yet: `python benchmarks/locomotion.py run --methods rlpd-utd1 rlpd --datasets hopper-medium "
             "halfcheetah-medium`") in empty
+
+
+def test_fidelity_ablations_are_tabled_against_proto_official(tmp_path):
+    """proto-official's rows one at a time: each ablation's scores, what it puts back, and whether its final CI
+    separates from proto-official's (here the temperature ablation ends near 31, proto-official near 81)."""
+    mod = load_module()
+    root = tmp_path / "locomotion"
+    for method in ("proto-sac", "proto-official", "official-but-temperature"):
+        publish(root, "hopper-medium", method)
+    publish(root, "walker2d-medium", "proto-official")  # no ablation there: no rows
+    table = mod.collect(root, tmp_path / "none")
+    text = "\n".join(mod.fidelity_ablations(table))
+    assert "| hopper-medium | official-but-temperature | row 2: the temperature loss log α·(H − H̄) |" in text
+    assert "| 31.0 ± 0.8 |" in text and "CIs separate (proto-official higher)" in text
+    assert "| hopper-medium | proto-sac | none of them |" in text and "CIs overlap |" in text
+    assert "walker2d-medium" not in text and "official-but-actor-q |" not in text  # unpublished rows are left out
+    assert "official-but-temperature" not in mod.methods_of(table["hopper-medium"])  # not a method column
+    table.pop("hopper-medium")
+    assert mod.fidelity_ablations(table) == []
 
 
 def test_other_domains_get_a_section_with_success_rates_and_claims(tmp_path):

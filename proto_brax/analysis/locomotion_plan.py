@@ -25,8 +25,42 @@ PAPER_METHODS = ("proto-sac", "frozen", "direct", "iql", "sac-scratch", "proto-t
 PRESET = "paper-mujoco-100k"
 # the ablations' middle values (proto-sac)
 TAU0, ETA0 = PRESETS[PRESET].fields["tau"][0], PRESETS[PRESET].fields["eta"][0]
-# Ablation -> the sweep flag and its two non-default values (0.5 and 2 × τ₀; η 0.8 and 1.0).
-ABLATIONS = {"ablate-tau": ("--tau", (0.5 * TAU0, 2 * TAU0)), "ablate-eta": ("--eta", (0.8, 1.0))}
+
+
+@dataclasses.dataclass(frozen=True)
+class Ablation:
+    """A runner pseudo-method: the sweep of the method ``base`` with ``flags`` added to its command line."""
+
+    base: str
+    flags: tuple[str, ...]
+    summary: str
+
+    @property
+    def values(self) -> tuple[float, ...]:
+        """A grid ablation's non-default values (``--tau V1 V2`` -> (V1, V2))."""
+        return tuple(float(v) for v in self.flags[1:])
+
+
+# The paper's appendix: PROTO-SAC over the two non-default values of τ (0.5 and 2 × τ₀) and η (0.8 and 1.0), in one
+# vmapped sweep each; the default value is the proto-sac sweep.
+GRID_ABLATIONS = {
+    "ablate-tau": Ablation("proto-sac", ("--tau", str(0.5 * TAU0), str(2 * TAU0)), "τ ∈ {0.5, 2} × τ₀"),
+    "ablate-eta": Ablation("proto-sac", ("--eta", "0.8", "1.0"), "η ∈ {0.8, 1.0}"),
+}
+# FIDELITY.md's rows one at a time: proto-official with one of its choices put back to this suite's default (the
+# official code's other choices kept), where proto-official's CIs separate from PROTO-SAC's. proto-official-online
+# (a method) is the complement of the policy class and pretraining rows (6, 13, 14).
+FIDELITY_ABLATIONS = {
+    "official-but-actor-q": Ablation("proto-official", ("--fidelity.actor-q", "backup"),
+                                     "row 1: the actor on the min of the two critics"),
+    "official-but-temperature": Ablation("proto-official", ("--fidelity.temperature-loss", "log_alpha"),
+                                         "row 2: the temperature loss log α·(H − H̄)"),
+    "official-but-start": Ablation("proto-official", ("--fidelity.online-preload", "0", "--learning-starts", "1000"),
+                                   "row 4: an empty online buffer and 1,000 warm-up steps"),
+    "official-but-critic-state": Ablation("proto-official", ("--fidelity.no-carry-critic-state",),
+                                          "row 5: a fresh critic Adam state and target"),
+}
+ABLATIONS = {**GRID_ABLATIONS, **FIDELITY_ABLATIONS}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,7 +83,7 @@ class Domain:
     """Per bundle kind, the pretraining flags of the domain (the PROTO paper's EQL; the IQL paper's IQL)."""
 
 
-LOCOMOTION = Domain("locomotion", DATASETS, PAPER_METHODS + tuple(ABLATIONS), PRESET, 50_000, 2_500,
+LOCOMOTION = Domain("locomotion", DATASETS, PAPER_METHODS + tuple(GRID_ABLATIONS), PRESET, 50_000, 2_500,
                     dataset_size=1_000_000)
 ADROIT = Domain("adroit", tuple(f"{t}-human" for t in ("pen", "door", "hammer")),
                 # 10⁴ steps, evaluated every 10³: MJX steps a hand ~100 times a second here and a 5-seed sweep does
@@ -81,8 +115,8 @@ def env_of(dataset: str) -> str:
 
 
 def method_of(name: str) -> Method:
-    """The sweep method a runner method name stands for (an ablation is a PROTO-SAC sweep)."""
-    return METHODS["proto-sac" if name in ABLATIONS else name]
+    """The sweep method a runner method name stands for (an ablation's is its base method)."""
+    return METHODS[ABLATIONS[name].base if name in ABLATIONS else name]
 
 
 def planned_sweeps(datasets: tuple[str, ...], methods: tuple[str, ...],
@@ -105,8 +139,7 @@ def sweep_command(dataset: str, method: str, out: Path, seeds: tuple[int, ...], 
     if domain.eval_episodes is not None:
         cmd += ["--eval-episodes", str(domain.eval_episodes)]
     if method in ABLATIONS:
-        flag, values = ABLATIONS[method]
-        cmd += [flag, *map(str, values)]
+        cmd += ABLATIONS[method].flags
     if m.uses_dataset:
         cmd += ["--dataset", dataset]
         if domain.dataset_size is not None:

@@ -36,6 +36,7 @@ from proto_brax.analysis.locomotion_plan import (
     DATASETS,
     DOMAINS,
     ETA0,
+    FIDELITY_ABLATIONS,
     LOCOMOTION,
     PAPER_METHODS,
     TAU0,
@@ -411,6 +412,35 @@ def comparison(table, c: Comparison) -> list[str]:
                     "PROTO-SAC IQM [95% CI] |", "|---|---|---|---|---|---|---|", *rows, ""]
 
 
+def fidelity_ablations(table) -> list[str]:
+    """FIDELITY.md's rows one at a time, per dataset where they ran: proto-official, each of its choices put back to
+    ours (``FIDELITY_ABLATIONS``), proto-official-online (our policy class and pretraining) and PROTO-SAC, with whether
+    each one's final IQM CI separates from proto-official's."""
+    out = []
+    for d in sorted(d for d, per in table.items() if set(FIDELITY_ABLATIONS) & set(per)):
+        ref = [r["final"] for r in table[d].get("proto-official", {}).get("runs", [])]
+        variants = [("proto-official", "all the official code's choices"),
+                    *((k, a.summary) for k, a in FIDELITY_ABLATIONS.items()),
+                    ("proto-official-online", "rows 6, 13, 14: our policy class and EQL bundle"),
+                    ("proto-sac", "none of them")]
+        for name, what in variants:
+            if name not in table[d]:
+                continue
+            runs = table[d][name]["runs"]
+            verdict = ("–" if name == "proto-official" or not ref else
+                       separation([r["final"] for r in runs], ref, name, "proto-official"))
+            out.append(f"| {d} | {name} | {what} | {score_cells(runs)} | {verdict} |")
+    if not out:
+        return []
+    return ["### proto-official's rows one at a time", "",
+            "`python benchmarks/locomotion.py run --per-seed --methods "
+            f"{' '.join(FIDELITY_ABLATIONS)} proto-official-online --ablation-datasets DATASET --datasets DATASET`: "
+            "proto-official with one of its choices put back to this suite's (FIDELITY.md's row), on the datasets "
+            "where proto-official's CIs separate from PROTO-SAC's.", "",
+            "| dataset | sweep | put back to ours | initial (π₀) | lowest in first 10% | final mean ± std | final IQM "
+            "[95% CI] | seeds | against proto-official |", "|---|---|---|---|---|---|---|---|---|", *out, ""]
+
+
 def final_mean(runs: list[dict]) -> str:
     finite = [r["final"] for r in runs if math.isfinite(r["final"])]
     return f"{fmt(np.mean(finite))} ± {fmt(np.std(finite))}" if finite else "–"
@@ -424,7 +454,7 @@ def ablation_tables(table) -> list[str]:
         datasets = [d for d in sorted(table) if ablation in table[d]]
         if not datasets:
             continue
-        flag, others = ABLATIONS[ablation]
+        flag, others = ABLATIONS[ablation].flags[0], ABLATIONS[ablation].values
         values = sorted({default, *others})
         rows, overlap, apart = [], 0, []
         for d in datasets:
@@ -648,6 +678,7 @@ def render(args: Args) -> tuple[str, str]:
     lines += ablation_tables(table)
     for c in COMPARISONS:
         lines += comparison(table, c)
+    lines += fidelity_ablations(table)
     lines += cost_table(cost)
     for name in args.domains:
         lines += domain_section(DOMAINS[name], args.results.parent / name, args.bundles)
