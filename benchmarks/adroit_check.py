@@ -53,8 +53,8 @@ class Args:
     """MJX contact bound (custom numeric); None = the env's default (``adroit.MAX_CONTACT_POINTS``), 0 = unbounded."""
     out: Path = ROOT / "benchmarks" / "results" / "adroit_check.json"
     baseline: bool = True
-    """Also time (interleaved, batch 1) and cross-check the env as it was before the contact bound and the sensor
-    pruning (``max_contact_points=None, all_sensors=True``)."""
+    """Also time (interleaved, batch 1) and cross-check the env as it was before the contact bounds, the pruned
+    colliders and the sensor pruning (``max_contact_points=None, all_sensors=True, prune_colliders=False``)."""
     merge: bool = False
     """Keep the other tasks already in ``out`` (re-run one task without losing the rest)."""
 

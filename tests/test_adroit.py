@@ -73,7 +73,7 @@ def test_mjx_keeps_the_deepest_contacts_per_condim_group_and_only_the_sensors_re
     model = adroit.load_capsule_model(task)
     groups = np.unique(make_condim(unbounded), return_counts=True)[1]
     slots = mjx.make_data(mjx.put_model(model))._impl.contact.dist.shape[0]
-    assert slots == sum(min(n, adroit.MAX_CONTACT_POINTS) for n in groups) < sum(groups)
+    assert slots == sum(min(n, adroit.TASK_MAX_CONTACT_POINTS[task]) for n in groups) < sum(groups)
     assert mjx.make_data(mjx.put_model(unbounded))._impl.contact.dist.shape[0] == sum(groups)
     kept = [model.sensor(i).name for i in range(model.nsensor)]
     assert kept == list(adroit.USED_SENSORS[task]) and unbounded.nsensor > 60
@@ -89,6 +89,50 @@ def test_mjx_keeps_the_deepest_contacts_per_condim_group_and_only_the_sensors_re
             rows.append(np.concatenate([d.qpos, d.qvel, formulas(task, adroit.task_ids(task, m), d, np)[0]]))
         runs.append(np.array(rows))
     np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def candidate_pairs(m: mujoco.MjModel) -> int:
+    """The geom pairs MJX collides every physics step (its implicit candidates and the explicit ``<pair>``s)."""
+    from mujoco.mjx._src.collision_driver import geom_pairs
+
+    return sum(1 for _ in geom_pairs(m))
+
+
+def test_pen_prunes_colliders_the_hand_never_touches_without_changing_native_physics():
+    """Pen's table, target and thumb base/hub collide with the pen only (``PRUNED_COLLIDERS``): 124 -> 44 pairs MJX
+    checks, 68 -> 24 contact slots. The pruned pairs never touch here, so native MuJoCo steps the same physics bit for
+    bit over 3 episodes of 100 random-action control steps from three random layouts, contacts included; door and
+    hammer keep every collider."""
+    full = adroit.load_capsule_model("pen", prune_colliders=False, max_contact_points=adroit.MAX_CONTACT_POINTS)
+    pruned = adroit.load_capsule_model("pen")
+    assert (candidate_pairs(full), candidate_pairs(pruned)) == (124, 44)
+    assert [mjx.make_data(mjx.put_model(m))._impl.contact.dist.shape[0] for m in (full, pruned)] == [68, 24]
+    body = {mujoco.mj_id2name(pruned, mujoco.mjtObj.mjOBJ_BODY, b): b for b in range(pruned.nbody)}
+    for name in adroit.PRUNED_COLLIDERS["pen"]:
+        geoms = pruned.geom_bodyid == body[name]
+        assert not pruned.geom_conaffinity[geoms].any() and full.geom_conaffinity[geoms].any()
+    for task in ("door", "hammer"):
+        assert candidate_pairs(adroit.load_capsule_model(task)) == candidate_pairs(
+            adroit.load_capsule_model(task, prune_colliders=False))
+    rng = np.random.default_rng(0)
+    touched = 0
+    for episode in range(3):
+        layout = np.asarray(adroit.sample_layout("pen", jax.random.PRNGKey(episode), full.body_quat[body["target"]]))
+        ctrl = rng.uniform(*full.actuator_ctrlrange.T, (100, full.nu))
+        runs = []
+        for m in (full, pruned):
+            m.body_quat[body["target"]] = layout
+            d = mujoco.MjData(m)
+            rows = []
+            for c in ctrl:
+                d.ctrl[:] = c
+                for _ in range(adroit.FRAME_SKIP):
+                    mujoco.mj_step(m, d)
+                    rows.append(np.concatenate([d.qpos, d.qvel, d.qacc, [d.ncon]]))
+            runs.append(np.array(rows))
+        np.testing.assert_array_equal(runs[0], runs[1])
+        touched += int(runs[0][:, -1].max() > 0)
+    assert touched == 3  # the hand and the pen do touch: the physics compared has contacts
 
 
 @pytest.mark.parametrize("task", TASKS)

@@ -163,7 +163,8 @@ def check_adroit_task(task: str, *, steps: int, batch: int, reps: int, native_st
                       max_geom_pairs: int | None, max_contact_points: int | None, baseline: bool) -> dict:
     """One Adroit task's cross-checks and speeds (``benchmarks/adroit_check.py``'s docstring): gymnasium vs our
     numpy formulas, capsule vs original XML, the chaos floor, MJX vs native; MJX at batch 1 and ``batch`` (0 skips
-    it), with ``baseline`` the env before the contact bound and sensor pruning timed interleaved; native speed."""
+    it), with ``baseline`` the env before the contact bounds, the pruned colliders and the sensor pruning timed
+    interleaved; native speed."""
     spec = adroit.get_task(task)
     kwargs = xml_kwargs(max_geom_pairs, max_contact_points)
     env = adroit.Adroit(task, **kwargs)
@@ -186,8 +187,9 @@ def check_adroit_task(task: str, *, steps: int, batch: int, reps: int, native_st
     speed = {"batch1": {"compile_s": compile_s, "seconds_per_call": times,
                         "control_steps_per_s": steps / statistics.median(times)}}
     baseline_check = None
-    if baseline:  # the env before the contact bound and sensor pruning, timed interleaved with today's
-        old = adroit.Adroit(task, **{**kwargs, "max_contact_points": None, "all_sensors": True})
+    if baseline:  # the env before the contact bounds, pruned colliders and sensor pruning, interleaved with today's
+        old = adroit.Adroit(task, **{**kwargs, "max_contact_points": None, "all_sensors": True,
+                                     "prune_colliders": False})
         old_c, _ = aot(mjx_rollout(old), layout32, actions32)
         old_out = jax.block_until_ready(old_c(layout32, actions32))
         pair = {"baseline": [], "env": []}

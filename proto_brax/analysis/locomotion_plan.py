@@ -86,8 +86,8 @@ class Domain:
 LOCOMOTION = Domain("locomotion", DATASETS, PAPER_METHODS + tuple(GRID_ABLATIONS), PRESET, 50_000, 2_500,
                     dataset_size=1_000_000)
 ADROIT = Domain("adroit", tuple(f"{t}-human" for t in ("pen", "door", "hammer")),
-                # 10⁴ steps, evaluated every 10³: MJX steps a hand ~100 times a second here and a 5-seed sweep does
-                # a few grid steps per second, so 10⁴ is what twelve sweeps can afford on the 2-core CPU
+                # 10⁴ steps, evaluated every 10³: MJX steps one hand 230-590 times a second here (2026-12-07) and an
+                # update costs about as much, so 10⁴ is what twelve 5-seed sweeps can afford on the 2-core CPU
                 # (docs/MEASUREMENTS.md#adroit); the first evaluation falls at 10% of the run, where the drop is read
                 ("proto-sac", "frozen", "direct", "iql"), "paper-adroit", 10_000, 1_000, anneal_over_budget=False,
                 bundle_flags={"eql": ("--steps", "100000"),  # IQL's Adroit values: expectile 0.7, β 0.5

@@ -63,6 +63,9 @@ load. Since 2026-12-06 MJX keeps the 24 deepest contacts per condim group (``MAX
 the sensors the observations read (``USED_SENSORS``): the cross-check's errors are unchanged to the printed digits, and
 a batch-1 rollout (interleaved with the unbounded, all-sensor env, beside one single-core sweep) went from 114 to 147
 control steps/s (pen), 58 to 108 (door) and 45 to 130 (hammer); native gymnasium-robotics steps 2100-3000.
+Since 2026-12-07 pen's table, target and thumb base/hub collide with the pen only (``PRUNED_COLLIDERS``; the hand
+never touched them natively) and pen keeps 12 contacts per group: on one quiet core a batch-1 rollout steps 585 (pen),
+243 (door) and 234 (hammer) control steps/s, with the cross-check's errors unchanged (docs/MEASUREMENTS.md#adroit).
 """
 
 from __future__ import annotations
@@ -87,6 +90,15 @@ FRAME_SKIP = 5  # gymnasium-robotics Adroit frame_skip
 # broad phase too (``max_geom_pairs`` 16 or 32) raised the door's error tenfold: neighbouring finger capsules always
 # overlap in bounding spheres, so the nearest-pairs cull drops real contacts. Left unbounded.
 MAX_CONTACT_POINTS = 24
+# Bodies that collide with the task's object only: their geoms' conaffinity is cleared, and the hand's geoms (contype 1,
+# conaffinity 0) then never collide with them; the 19 explicit finger-finger pairs stay. On pen, native MuJoCo found
+# no contact of the hand with the table, the target pen or the thumb's base and hub in 10 random-action, 10 DAPG-expert
+# and 10 noisy-expert episodes (every physics step counted), and at most 8 contacts at once, so pen also keeps 12
+# contacts per condim group. Together: 124 -> 44 candidate pairs, 68 -> 24 contact slots, a physics step 0.74 ->
+# 0.38 ms at batch 1 (docs/MEASUREMENTS.md#adroit). On door and hammer the hand does touch the table and the frame,
+# so nothing is pruned there.
+PRUNED_COLLIDERS = {"pen": ("table", "target", "thbase", "thhub"), "door": (), "hammer": ()}
+TASK_MAX_CONTACT_POINTS = {"pen": 12, "door": MAX_CONTACT_POINTS, "hammer": MAX_CONTACT_POINTS}
 PRISM_SIDES = 16  # adroit_xml(cylinders="prism"): the polygon a cylinder's convex-mesh stand-in is built on
 # Sensors the observations read: MJX computes every sensor on every physics step (65 on the door: ~10% of a step),
 # and no sensor acts on the physics.
@@ -168,18 +180,21 @@ def adroit_xml(
     task: str,
     *,
     max_geom_pairs: int | None = None,
-    max_contact_points: int | None = MAX_CONTACT_POINTS,
+    max_contact_points: int | None | str = "task",
     solver_iterations: int | None = None,
     ls_iterations: int | None = None,
     capsule_ends: str = "extend",
     all_sensors: bool = False,
     cylinders: str = "capsule",
+    prune_colliders: bool = True,
 ) -> str:
     """MJX-loadable XML: ``original_xml`` with every cylinder geom turned into a capsule (same radius and
     half-length) and explicit inertials where a body's inertia came from a converted geom (module docstring).
 
     The optional MJX contact bounds are inserted as the first ``<custom>`` numerics (mjx 3.17 reads them by index);
-    native MuJoCo ignores them (``max_contact_points=None``: unbounded). ``solver_iterations`` / ``ls_iterations``
+    native MuJoCo ignores them (``max_contact_points=None``: unbounded; "task": ``TASK_MAX_CONTACT_POINTS``).
+    ``prune_colliders``: the bodies of ``PRUNED_COLLIDERS`` collide with the object only. ``solver_iterations`` /
+    ``ls_iterations``
     override the XML's solver caps. Only the sensors in ``USED_SENSORS`` are kept unless ``all_sensors``.
     ``capsule_ends``: "extend" keeps the cylinder's half-length (the caps stick out by the radius at both ends);
     "match" shortens the half-length by the radius where the cylinder is longer than wide (half-length > radius),
@@ -199,6 +214,9 @@ def adroit_xml(
         if name is not None and mujoco.mj_name2id(compiled, mujoco.mjtObj.mjOBJ_BODY, name) != body_id:
             raise RuntimeError(f"body order mismatch at {name!r}")
         converted = False
+        if prune_colliders and name in PRUNED_COLLIDERS[task]:
+            for geom in body.findall("geom"):
+                geom.set("conaffinity", "0")
         for geom in body.findall("geom"):
             if geom.get("type") == "cylinder" and cylinders == "prism":
                 radius, half = geom.get("size").split()[:2]
@@ -258,6 +276,8 @@ def adroit_xml(
             vertex = " ".join(f"{float(x)!r} {float(y)!r} {float(z)!r}" for z in (-h, h) for x, y in ring)
             asset.append(ET.Element("mesh", name=name, vertex=vertex, scale="1 1 1"))  # (the files default to mm)
     custom = root.find("custom")
+    if max_contact_points == "task":
+        max_contact_points = TASK_MAX_CONTACT_POINTS[task]
     bounds = [("max_contact_points", max_contact_points), ("max_geom_pairs", max_geom_pairs)]
     if any(v is not None for _, v in bounds):
         if custom is None:
