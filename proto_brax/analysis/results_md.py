@@ -417,7 +417,8 @@ def fidelity_ablations(table) -> list[str]:
     ours (``FIDELITY_ABLATIONS``), proto-official-online (our policy class and pretraining) and PROTO-SAC, with whether
     each one's final IQM CI separates from proto-official's."""
     out = []
-    for d in sorted(d for d, per in table.items() if set(FIDELITY_ABLATIONS) & set(per)):
+    put_back = {*FIDELITY_ABLATIONS, "proto-official-online"}
+    for d in sorted(d for d, per in table.items() if "proto-official" in per and put_back & set(per)):
         ref = [r["final"] for r in table[d].get("proto-official", {}).get("runs", [])]
         variants = [("proto-official", "all the official code's choices"),
                     *((k, a.summary) for k, a in FIDELITY_ABLATIONS.items()),
