@@ -419,7 +419,7 @@ def fidelity_ablations(table) -> list[str]:
     out = []
     put_back = {*FIDELITY_ABLATIONS, "proto-official-online"}
     for d in sorted(d for d, per in table.items() if "proto-official" in per and put_back & set(per)):
-        ref = [r["final"] for r in table[d].get("proto-official", {}).get("runs", [])]
+        ref = [r["final"] for r in table[d]["proto-official"]["runs"]]
         variants = [("proto-official", "all the official code's choices"),
                     *((k, a.summary) for k, a in FIDELITY_ABLATIONS.items()),
                     ("proto-official-online", "rows 6, 13, 14: our policy class and EQL bundle"),
@@ -428,7 +428,7 @@ def fidelity_ablations(table) -> list[str]:
             if name not in table[d]:
                 continue
             runs = table[d][name]["runs"]
-            verdict = ("–" if name == "proto-official" or not ref else
+            verdict = ("–" if name == "proto-official" else
                        separation([r["final"] for r in runs], ref, name, "proto-official"))
             out.append(f"| {d} | {name} | {what} | {score_cells(runs)} | {verdict} |")
     if not out:
