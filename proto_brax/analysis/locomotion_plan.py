@@ -16,7 +16,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from proto_brax.agents.registry import METHODS, Method, pretrain_flags
-from proto_brax.experiment.args import PRESETS
+from proto_brax.experiment.args import PRESETS, SweepArgs
 from proto_brax.files import atomic_write, copy_atomic
 
 DATASETS = tuple(f"{env}-{kind}" for env in ("hopper", "walker2d", "halfcheetah", "ant")
@@ -47,17 +47,30 @@ GRID_ABLATIONS = {
     "ablate-tau": Ablation("proto-sac", ("--tau", str(0.5 * TAU0), str(2 * TAU0)), "τ ∈ {0.5, 2} × τ₀"),
     "ablate-eta": Ablation("proto-sac", ("--eta", "0.8", "1.0"), "η ∈ {0.8, 1.0}"),
 }
+# What a fidelity ablation puts back: PROTO-SAC's settings under the preset (this suite's choices).
+OURS = PRESETS[PRESET].apply(SweepArgs())
+
+
+def put_back(field: str) -> tuple[str, ...]:
+    """The sweep flags that set the ``Fidelity`` switch ``field`` to ours (tyro's spelling: a bool is a flag pair)."""
+    value, name = getattr(OURS.fidelity, field), field.replace("_", "-")
+    if isinstance(value, bool):
+        return (f"--fidelity.{name}" if value else f"--fidelity.no-{name}",)
+    return (f"--fidelity.{name}", str(value))
+
+
 # FIDELITY.md's rows one at a time: proto-official with one of its choices put back to this suite's default (the
 # official code's other choices kept), where proto-official's CIs separate from PROTO-SAC's. proto-official-online
 # (a method) is the complement of the policy class and pretraining rows (6, 13, 14).
 FIDELITY_ABLATIONS = {
-    "official-but-actor-q": Ablation("proto-official", ("--fidelity.actor-q", "backup"),
+    "official-but-actor-q": Ablation("proto-official", put_back("actor_q"),
                                      "row 1: the actor on the min of the two critics"),
-    "official-but-temperature": Ablation("proto-official", ("--fidelity.temperature-loss", "log_alpha"),
+    "official-but-temperature": Ablation("proto-official", put_back("temperature_loss"),
                                          "row 2: the temperature loss log α·(H − H̄)"),
-    "official-but-start": Ablation("proto-official", ("--fidelity.online-preload", "0", "--learning-starts", "1000"),
-                                   "row 4: an empty online buffer and 1,000 warm-up steps"),
-    "official-but-critic-state": Ablation("proto-official", ("--fidelity.no-carry-critic-state",),
+    "official-but-start": Ablation("proto-official", (*put_back("online_preload"), "--learning-starts",
+                                                      str(OURS.learning_starts)),
+                                   f"row 4: an empty online buffer and {OURS.learning_starts:,} warm-up steps"),
+    "official-but-critic-state": Ablation("proto-official", put_back("carry_critic_state"),
                                           "row 5: a fresh critic Adam state and target"),
 }
 ABLATIONS = {**GRID_ABLATIONS, **FIDELITY_ABLATIONS}
