@@ -447,6 +447,35 @@ def _full_horizon_stats(env, horizon, policy, key, episodes):
     return ret, length
 
 
+def test_one_at_a_time_evaluation_runs_the_side_by_side_episodes():
+    """``one_at_a_time`` (the MJX hands' evaluation) runs the same episodes as side by side: the same starts and, for
+    a deterministic policy, the same returns, lengths and success counts, alone and under a grid's vmap; each episode
+    stops at its own end. A noisy policy sees the same step keys but batch-of-one noise: other returns, same starts."""
+    env = envs.make_env("point")
+    toward = lambda obs, k: jnp.clip(0.7 - 2.0 * obs[:, :2] + 0.3 * obs[:, 2:], -1.0, 1.0)  # noqa: E731
+    away = lambda obs, k: jnp.clip(1.5 * obs[:, :2] + 0.2, -1.0, 1.0)  # noqa: E731  (leaves the box: terminals)
+    noisy = lambda obs, k: jax.random.normal(k, obs[:, :2].shape)  # noqa: E731
+    keys = jax.random.split(jax.random.PRNGKey(5), 3)
+    for pol in (toward, away):
+        both = [jax.jit(lambda k, m=m, pol=pol: run_episode_stats(env, 40, pol, k, 7, one_at_a_time=m))
+                for m in (False, True)]
+        for k in keys:
+            side, one = both[0](k), both[1](k)
+            np.testing.assert_allclose(one.returns, side.returns, rtol=1e-6, atol=1e-6)
+            np.testing.assert_array_equal(one.lengths, side.lengths)
+            np.testing.assert_array_equal(one.success_steps, side.success_steps)
+        grid = jax.jit(jax.vmap(lambda k, pol=pol: run_episode_stats(env, 40, pol, k, 7, one_at_a_time=True)))(keys)
+        np.testing.assert_allclose(grid.returns, np.stack([both[0](k).returns for k in keys]), rtol=1e-6, atol=1e-6)
+    lengths = jax.jit(lambda k: run_episode_stats(env, 40, away, k, 7, one_at_a_time=True).lengths)(keys[0])
+    assert 1 <= int(lengths.min()) < int(lengths.max()) < 40  # episodes end at their own steps, early
+    first = lambda obs, k: obs[:, :2] * 0.0  # noqa: E731  (stands still: the return is 40 rewards of the start)
+    a, b = (run_episode_stats(env, 40, first, keys[1], 7, one_at_a_time=m).returns for m in (False, True))
+    np.testing.assert_allclose(a, b, rtol=1e-6)  # the same starts
+    n1, n2 = (run_episode_stats(env, 40, noisy, keys[1], 7, one_at_a_time=m).returns for m in (False, True))
+    assert not np.allclose(n1, n2)
+    assert [n for n, s in envs.REGISTRY.items() if s.eval_one_at_a_time] == ["pen", "door", "hammer"]
+
+
 def test_evaluation_stops_when_every_episode_has_ended_with_the_full_horizons_result():
     """Episodes that all end early cost their own steps, not the horizon's (counted by a host callback in the
     policy), and the returns and lengths equal a full-horizon scan's bit for bit, alone and under a grid's vmap

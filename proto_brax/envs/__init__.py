@@ -65,6 +65,11 @@ class EnvSpec:
     success_steps: int | None = None
     # LayerNorm in Q and V by default; the PROTO paper (and its code) turn it off for halfcheetah.
     critic_layer_norm: bool = True
+    # Evaluation runs its episodes one after another, each unbatched, instead of side by side (run_episode_stats):
+    # 2-3x faster for the MJX hands, 2x slower for Brax's locomotion (one thread, 10 episodes, a fixed noisy linear
+    # policy; side-by-side / one-at-a-time seconds: pen 2.18 / 0.71, door 15.5 / 7.9, halfcheetah 2.96 / 5.54;
+    # docs/MEASUREMENTS.md#one-env).
+    eval_one_at_a_time: bool = False
 
 
 def default_layer_norm(env: str) -> bool:
@@ -154,11 +159,14 @@ REGISTRY: dict[str, EnvSpec] = {
     # the time limit and their returns are dense; success counts D4RL's goal_achieved steps (mjrl's evaluate_success:
     # pen within 15° of its target on > 20 steps, door open / nail in on > 25).
     "pen": EnvSpec("pen", "mjx", episode_length=100, ref_random=96.262799, ref_expert=3076.8331,
-                   reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=20),
+                   reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=20,
+                   eval_one_at_a_time=True),
     "door": EnvSpec("door", "mjx", episode_length=200, ref_random=-56.512833, ref_expert=2880.5693,
-                    reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25),
+                    reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25,
+                    eval_one_at_a_time=True),
     "hammer": EnvSpec("hammer", "mjx", episode_length=200, ref_random=-274.856578, ref_expert=12794.1340,
-                      reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25),
+                      reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25,
+                    eval_one_at_a_time=True),
     # Gymnasium's MuJoCo v5 locomotion on MJX (proto_brax/envs/gym_v5.py; the dynamics of Minari's mujoco/* data),
     # gymnasium's 1000-step limits. References: D4RL's (d4rl/infos.py REF_MIN_SCORE / REF_MAX_SCORE, random / expert,
     # measured on the v2 envs: mujoco-py, Hopper-v3 etc.), so scores sit beside published D4RL ones; v5 differs

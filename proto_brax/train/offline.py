@@ -64,7 +64,8 @@ def make_pretrain(cfg: PretrainConfig) -> Pretrain:
     env = envs.make_env(cfg.env)
     obs_size, act_size = env.observation_size, env.action_size
     nets = make_networks(cfg.net, act_size)
-    horizon = envs.get_spec(cfg.env).episode_length
+    spec = envs.get_spec(cfg.env)
+    horizon = spec.episode_length
     insample = {"eql": eql.update, "sql": sql.update, "iql": iql.update}
     cql_cfg = FinetuneConfig(env=cfg.env, algo=cfg.algo if cfg.algo in TEMPERATURE_ALGOS else "cql", net=cfg.net,
                              regularizer=False)
@@ -89,7 +90,7 @@ def make_pretrain(cfg: PretrainConfig) -> Pretrain:
 
     def evaluate(actor, key):
         policy = lambda obs, k: nets.policy.mode(nets.actor.apply(actor, obs)[0])  # noqa: E731
-        return run_episodes(env, horizon, policy, key, cfg.eval_episodes)
+        return run_episodes(env, horizon, policy, key, cfg.eval_episodes, spec.eval_one_at_a_time)
 
     return Pretrain(cfg=cfg, init=init, chunk=chunk, evaluate=evaluate, nets=nets, obs_size=obs_size,
                     act_size=act_size)

@@ -59,7 +59,7 @@ class Finetune:
 
 
 def make_finetune(cfg: FinetuneConfig) -> Finetune:
-    env = envs.make_env(cfg.env, cfg.backend)
+    env, spec = envs.make_env(cfg.env, cfg.backend), envs.get_spec(cfg.env)
     obs_size, act_size = env.observation_size, env.action_size
     algo = registry.agent(cfg.algo)
     algo = algo.configure(cfg) if algo.configure is not None else algo
@@ -114,14 +114,21 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
             step=jnp.zeros((), jnp.int32),
         )
 
+    def step_envs(env_state: envs.EnvState, action: jax.Array, keys: jax.Array):
+        """``envs.env_step`` of each of the ``num_envs`` envs (leading axes). One env steps unbatched: XLA:CPU runs a
+        batch-of-one vmap of the physics up to 2x slower (one thread, uniform random actions, ms per step unbatched
+        vs vmapped: pen 2.85 vs 5.82, door 5.52 vs 9.28, hopper 0.19 vs 0.25, hopper-v5 1.65 vs 2.62, halfcheetah
+        0.82 vs 0.78; docs/MEASUREMENTS.md#one-env). The keys are the same, so only the rounding differs."""
+        one = lambda s, a, k: envs.env_step(env, horizon, s, a, k)  # noqa: E731
+        if cfg.num_envs > 1:
+            return jax.vmap(one)(env_state, action, keys)
+        return jax.tree.map(lambda x: x[None], one(*jax.tree.map(lambda x: x[0], (env_state, action, keys))))
+
     def train_step(state: TrainState, t: jax.Array, hp: HParams, dataset):
         key, k_act, k_env, k_update = jax.random.split(state.key, 4)
         obs = state.env.brax_state.obs
         action = algo.act(nets, state.learner, obs, k_act, hp, deterministic=False)
-        env_keys = jax.random.split(k_env, cfg.num_envs)
-        env_state, transition, done, ret = jax.vmap(lambda s, a, k: envs.env_step(env, horizon, s, a, k))(
-            state.env, action, env_keys
-        )
+        env_state, transition, done, ret = step_envs(state.env, action, jax.random.split(k_env, cfg.num_envs))
         # Training rewards in the offline data's units; ``ret`` (reported returns) stays raw.
         transition = transition.replace(rewards=cfg.reward_scale * transition.rewards + cfg.reward_shift)
         if algo.mc_returns:  # the new rows start at 0 and collect their episode's rewards as they come
@@ -170,7 +177,7 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
         deterministic = cfg.fidelity.eval_mode == "deterministic"
         hp = algo.hparams.create() if hp is None and not deterministic else hp
         policy = lambda obs, k: algo.act(nets, learner, obs, k, hp, deterministic=deterministic)  # noqa: E731
-        return run_episode_stats(env, horizon, policy, key, cfg.eval_episodes)
+        return run_episode_stats(env, horizon, policy, key, cfg.eval_episodes, spec.eval_one_at_a_time)
 
     def chunk(state: TrainState, hp: HParams, dataset, start: jax.Array):
         expect(hp)
