@@ -67,8 +67,8 @@ class EnvSpec:
     critic_layer_norm: bool = True
     # Evaluation runs its episodes one after another, each unbatched, instead of side by side (run_episode_stats):
     # 2-3x faster for the MJX hands, 2x slower for Brax's locomotion (one thread, 10 episodes, a fixed noisy linear
-    # policy; side-by-side / one-at-a-time seconds: pen 2.18 / 0.71, door 15.5 / 7.9, halfcheetah 2.96 / 5.54;
-    # docs/MEASUREMENTS.md#one-env).
+    # policy; side-by-side / one-at-a-time seconds: pen 2.34 / 0.77, door 15.5 / 8.8, halfcheetah 3.00 / 5.71;
+    # benchmarks/one_env.py, docs/MEASUREMENTS.md#one-env).
     eval_one_at_a_time: bool = False
 
 
@@ -166,7 +166,7 @@ REGISTRY: dict[str, EnvSpec] = {
                     eval_one_at_a_time=True),
     "hammer": EnvSpec("hammer", "mjx", episode_length=200, ref_random=-274.856578, ref_expert=12794.1340,
                       reward_scale_rule="none", kwargs=(("d4rl_reward", True),), success_steps=25,
-                    eval_one_at_a_time=True),
+                      eval_one_at_a_time=True),
     # Gymnasium's MuJoCo v5 locomotion on MJX (proto_brax/envs/gym_v5.py; the dynamics of Minari's mujoco/* data),
     # gymnasium's 1000-step limits. References: D4RL's (d4rl/infos.py REF_MIN_SCORE / REF_MAX_SCORE, random / expert,
     # measured on the v2 envs: mujoco-py, Hopper-v3 etc.), so scores sit beside published D4RL ones; v5 differs

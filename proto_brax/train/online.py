@@ -117,8 +117,9 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
     def step_envs(env_state: envs.EnvState, action: jax.Array, keys: jax.Array):
         """``envs.env_step`` of each of the ``num_envs`` envs (leading axes). One env steps unbatched: XLA:CPU runs a
         batch-of-one vmap of the physics up to 2x slower (one thread, uniform random actions, ms per step unbatched
-        vs vmapped: pen 2.85 vs 5.82, door 5.52 vs 9.28, hopper 0.19 vs 0.25, hopper-v5 1.65 vs 2.62, halfcheetah
-        0.82 vs 0.78; docs/MEASUREMENTS.md#one-env). The keys are the same, so only the rounding differs."""
+        vs vmapped: pen 2.93 vs 5.61, door 5.94 vs 10.12, hopper 0.18 vs 0.22, hopper-v5 2.85 vs 4.30, halfcheetah
+        0.82 vs 0.88; benchmarks/one_env.py, docs/MEASUREMENTS.md#one-env). The keys are the same, so only the
+        rounding differs."""
         one = lambda s, a, k: envs.env_step(env, horizon, s, a, k)  # noqa: E731
         if cfg.num_envs > 1:
             return jax.vmap(one)(env_state, action, keys)
