@@ -32,6 +32,7 @@ from proto_brax.data.dataset import OfflineDataset
 from proto_brax.data.replay import ReplayBuffer, replay_accumulate_returns, replay_init, replay_insert, replay_sample
 from proto_brax.networks import make_networks
 from proto_brax.train.evaluate import EpisodeStats, run_episode_stats
+from proto_brax.train.grid import run_batched
 
 ACTOR_METRICS = ("actor_loss", "kl_pibar", "lambda", "entropy", "weight_mean", "log_prob")
 
@@ -114,22 +115,16 @@ def make_finetune(cfg: FinetuneConfig) -> Finetune:
             step=jnp.zeros((), jnp.int32),
         )
 
-    def step_envs(env_state: envs.EnvState, action: jax.Array, keys: jax.Array):
-        """``envs.env_step`` of each of the ``num_envs`` envs (leading axes). One env steps unbatched: XLA:CPU runs a
-        batch-of-one vmap of the physics up to 2x slower (one thread, uniform random actions, ms per step unbatched
-        vs vmapped: pen 2.93 vs 5.61, door 5.94 vs 10.12, hopper 0.18 vs 0.22, hopper-v5 2.85 vs 4.30, halfcheetah
-        0.82 vs 0.88; benchmarks/one_env.py, docs/MEASUREMENTS.md#one-env). The keys are the same, so only the
-        rounding differs."""
-        one = lambda s, a, k: envs.env_step(env, horizon, s, a, k)  # noqa: E731
-        if cfg.num_envs > 1:
-            return jax.vmap(one)(env_state, action, keys)
-        return jax.tree.map(lambda x: x[None], one(*jax.tree.map(lambda x: x[0], (env_state, action, keys))))
-
     def train_step(state: TrainState, t: jax.Array, hp: HParams, dataset):
         key, k_act, k_env, k_update = jax.random.split(state.key, 4)
         obs = state.env.brax_state.obs
         action = algo.act(nets, state.learner, obs, k_act, hp, deterministic=False)
-        env_state, transition, done, ret = step_envs(state.env, action, jax.random.split(k_env, cfg.num_envs))
+        # run_batched steps one env unbatched: XLA:CPU runs a batch-of-one vmap of the physics up to 2x slower (ms per
+        # step, one thread, unbatched vs vmapped: pen 2.93 vs 5.61, door 5.94 vs 10.12, hopper-v5 2.85 vs 4.30,
+        # halfcheetah 0.82 vs 0.88; benchmarks/one_env.py, docs/MEASUREMENTS.md#one-env). Same keys: only rounding
+        # moves.
+        step = run_batched(lambda s, a, k: envs.env_step(env, horizon, s, a, k), (0, 0, 0))
+        env_state, transition, done, ret = step(state.env, action, jax.random.split(k_env, cfg.num_envs))
         # Training rewards in the offline data's units; ``ret`` (reported returns) stays raw.
         transition = transition.replace(rewards=cfg.reward_scale * transition.rewards + cfg.reward_shift)
         if algo.mc_returns:  # the new rows start at 0 and collect their episode's rewards as they come
