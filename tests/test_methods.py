@@ -445,6 +445,16 @@ def test_locomotion_runner_commands_parse(tmp_path):
     assert start.fidelity == dataclasses.replace(official.fidelity, online_preload=0) and start.learning_starts == 1000
     assert state.fidelity == dataclasses.replace(official.fidelity, carry_critic_state=False)
     assert actor.fidelity == dataclasses.replace(official.fidelity, actor_q="backup")
+    # rows 13-14 put back: the official code's every choice, from a Gaussian-policy bundle with this suite's EQL
+    extraction = sweep.parse_args(command("halfcheetah-medium", "official-but-extraction", resume=False)[3:])
+    assert extraction.fidelity == official.fidelity and extraction.policy == "gaussian"
+    assert official.checkpoint == "auto"
+    assert extraction.checkpoint == "checkpoints/pretrained/halfcheetah-medium/eql-gaussian"
+    assert plan.missing_bundle("halfcheetah-medium", "official-but-extraction", tmp_path) == (
+        "python -m proto_brax.pretrain --dataset halfcheetah-medium --algo eql --policy gaussian --out "
+        "checkpoints/pretrained/halfcheetah-medium/eql-gaussian")
+    assert "--hp eql_weight_scale 1 eql_z_clip 7" in plan.missing_bundle("halfcheetah-medium", "proto-official",
+                                                                         tmp_path)
     assert "official-but-temperature" not in plan.LOCOMOTION.methods  # run only when named
     # single_core: one device (5 seeds, no padding run) and one XLA thread for the child
     one = command("hopper-medium", "direct", resume=False, single_core=True)

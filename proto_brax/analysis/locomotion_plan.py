@@ -34,6 +34,10 @@ class Ablation:
     base: str
     flags: tuple[str, ...]
     summary: str
+    bundle: str | None = None
+    """A bundle directory under checkpoints/pretrained/DATASET that replaces the base method's (``--checkpoint``)."""
+    bundle_hp: dict[str, float] | None = None
+    """The pretraining hyper-parameters that make ``bundle`` (None: the pretraining defaults, this suite's)."""
 
     @property
     def values(self) -> tuple[float, ...]:
@@ -72,6 +76,10 @@ FIDELITY_ABLATIONS = {
                                    f"row 4: an empty online buffer and {OURS.learning_starts:,} warm-up steps"),
     "official-but-critic-state": Ablation("proto-official", put_back("carry_critic_state"),
                                           "row 5: a fresh critic Adam state and target"),
+    # Under the official policy class, from a bundle pretrained with this suite's EQL (IVR's extraction weight
+    # exp(10 (Q − V)/α), z clip 5): with proto-official-online it splits row 6 from rows 13-14.
+    "official-but-extraction": Ablation("proto-official", (), "rows 13-14: IVR's EQL extraction (weight scale 10, "
+                                        "z clip 5) under the official policy class", bundle="eql-gaussian"),
 }
 ABLATIONS = {**GRID_ABLATIONS, **FIDELITY_ABLATIONS}
 
@@ -153,6 +161,8 @@ def sweep_command(dataset: str, method: str, out: Path, seeds: tuple[int, ...], 
         cmd += ["--eval-episodes", str(domain.eval_episodes)]
     if method in ABLATIONS:
         cmd += ABLATIONS[method].flags
+        if ABLATIONS[method].bundle is not None:
+            cmd += ["--checkpoint", f"checkpoints/pretrained/{dataset}/{ABLATIONS[method].bundle}"]
     if m.uses_dataset:
         cmd += ["--dataset", dataset]
         if domain.dataset_size is not None:
@@ -185,13 +195,15 @@ def missing_bundle(dataset: str, method: str, pretrained: Path, domain: Domain =
     if not m.bundles:
         return None
     kind = m.bundles[0]  # the bundle kind that --checkpoint auto picks
-    if (pretrained / dataset / m.auto_bundle / "metadata.json").exists():
+    bundle, hp = m.auto_bundle, m.defaults.get("pretrain_hp")
+    if (ablation := ABLATIONS.get(method)) is not None and ablation.bundle is not None:
+        bundle, hp = ablation.bundle, ablation.bundle_hp
+    if (pretrained / dataset / bundle / "metadata.json").exists():
         return None
     extra = "".join(f" {f}" for f in (*domain.bundle_flags.get(kind, ()),
-                                      *pretrain_flags(m.defaults.get("policy", "tanh_gaussian"),
-                                                      m.defaults.get("pretrain_hp"))))
+                                      *pretrain_flags(m.defaults.get("policy", "tanh_gaussian"), hp)))
     return (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}{extra} --out "
-            f"checkpoints/pretrained/{dataset}/{m.auto_bundle}")
+            f"checkpoints/pretrained/{dataset}/{bundle}")
 
 
 @contextlib.contextmanager
