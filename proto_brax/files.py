@@ -48,6 +48,53 @@ def atomic_write(path: str | os.PathLike, mode: str = "w") -> Iterator[IO]:
         raise
 
 
+LOCK_NAME = ".lock"
+_LOCKS: dict[str, IO] = {}  # directory -> the open lock file this process holds (the lock lives with the open file)
+
+
+class DirectoryBusy(FileExistsError):
+    """Another live process holds the directory's lock (``lock_dir``)."""
+
+
+def lock_dir(directory: str | os.PathLike, choose: str) -> None:
+    """Make this process the one writer of ``directory`` for the rest of its life: an exclusive ``flock`` on
+    ``directory/.lock``. The kernel drops it when the process ends, even on SIGKILL, so a killed run leaves no stale
+    lock and its resume takes the directory over. A second process stops with a one-line error naming the first (its
+    pid and host) and ``choose`` (what to pick instead), rather than interleaving its chunks with the first one's.
+    Taking a lock this process already holds does nothing. (An flock is per host: two hosts sharing a network
+    filesystem may not see each other's.)"""
+    import fcntl
+    import socket
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    key = str(d.resolve())
+    if key in _LOCKS and Path(_LOCKS[key].name).exists():
+        return
+    f = open(d / LOCK_NAME, "a+")
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        f.seek(0)
+        holder = f.read().strip() or "another process"
+        f.close()
+        raise DirectoryBusy(f"{d} is being written by {holder}: wait for it to end, or {choose}.") from None
+    f.seek(0)
+    f.truncate()
+    f.write(f"pid {os.getpid()} on {socket.gethostname()}")
+    f.flush()
+    if key in _LOCKS:  # (the directory was replaced under an old lock of ours: that file is gone)
+        _LOCKS.pop(key).close()
+    _LOCKS[key] = f
+
+
+def release_dir(directory: str | os.PathLike) -> None:
+    """Drop this process's lock on ``directory`` (``lock_dir``), if it holds one: at the end of the work."""
+    f = _LOCKS.pop(str(Path(directory).resolve()), None)
+    if f is not None:
+        f.close()
+
+
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:
     with atomic_write(path) as f:
         f.write(text)

@@ -359,3 +359,69 @@ def test_datasets_make_force_replaces_only_a_dataset_file(tmp_path):
     with pytest.raises(FileExistsError, match="not a dataset file"):
         datasets_cli.cmd_make(datasets_cli.Make(name="point-random", size=2000, cache_dir=tmp_path, force=True))
     assert (path / "keep.txt").read_text() == "mine"
+
+
+# 10. two processes writing one sweep ------------------------------------------------------------------------------
+
+# Another process that holds DIR/.lock as files.lock_dir takes it, until it is killed.
+HOLDER = ("import fcntl, os, sys, time\n"
+          "f = open(os.path.join(sys.argv[1], '.lock'), 'a+')\n"
+          "fcntl.flock(f, fcntl.LOCK_EX)\n"
+          "f.seek(0); f.truncate(); f.write(f'pid {os.getpid()} on testhost'); f.flush()\n"
+          "print('held', flush=True)\n"
+          "time.sleep(600)\n")
+
+
+def _hold(directory: Path) -> subprocess.Popen:
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(directory)], stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "held"
+    return holder
+
+
+def test_a_second_process_on_the_same_sweep_is_refused_and_a_killed_ones_resume_takes_over(tiny_sweep, tmp_path):
+    """Before the lock, a second --resume (or --overwrite) of a sweep that was still running appended its own chunks
+    to the first one's metrics and checkpoints. Now it stops with a one-line error naming the holder, before it
+    writes or deletes anything; once the holder dies (even by SIGKILL: the kernel drops an flock) the same command
+    takes the directory over."""
+    out = tmp_path / "sweep"
+    shutil.copytree(tiny_sweep, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file() and p.name != ".lock"}
+    holder = _hold(out)
+    try:
+        for flag in ("resume", "overwrite"):
+            with pytest.raises(FileExistsError, match=rf"{out} is being written by pid {holder.pid} on testhost: "
+                                                      "wait for it to end, or choose another --out"):
+                sweep.run_sweep(sweep.SweepArgs(out=out, **{flag: True}, **SMALL))
+            assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file() and p.name != ".lock"} == before
+    finally:
+        holder.kill()
+        holder.wait()
+    sweep.run_sweep(sweep.SweepArgs(out=out, resume=True, **SMALL))  # the holder is gone: resumes (nothing left)
+    assert (out / "metrics.jsonl").read_bytes() == before["metrics.jsonl"]
+    holder = _hold(out)  # and this process let go of it at the end of its run
+    holder.kill()
+    holder.wait()
+
+
+def test_a_second_pretraining_on_the_same_resume_state_is_refused(tmp_path, monkeypatch):
+    monkeypatch.setenv("PROTO_BRAX_RUNS", str(tmp_path / "runs"))
+    data = tmp_path / "d.npz"
+    point = _random_data(obs=4)  # the point task's sizes
+    ds.save_npz(data, point, {"env": "point"})
+    args = pretrain.PretrainArgs(dataset=str(data), out=tmp_path / "bundle", resume=True, steps=100, log_every=100,
+                                 hidden=(8,), batch_size=8, eval_episodes=1)
+    from proto_brax.experiment.pretrain import partial_dir
+
+    partial = partial_dir(args, ds.content_hash(point))
+    partial.mkdir(parents=True)
+    holder = _hold(partial)
+    try:
+        with pytest.raises(FileExistsError, match=f"being written by pid {holder.pid} on testhost: wait for it to "
+                                                  "end, or run without --resume"):
+            pretrain.pretrain(args)
+        assert not (tmp_path / "bundle").exists()
+    finally:
+        holder.kill()
+        holder.wait()
+    pretrain.pretrain(args)  # the holder is gone
+    assert (tmp_path / "bundle" / "metadata.json").exists() and not partial.exists()

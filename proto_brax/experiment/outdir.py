@@ -8,16 +8,27 @@ import shutil
 from pathlib import Path
 
 from proto_brax.experiment.args import SweepArgs, sweep_record, with_later_defaults
-from proto_brax.files import append_once, read_jsonl, strict_json, write_json_atomic, write_text_atomic
+from proto_brax.files import (
+    LOCK_NAME,
+    append_once,
+    lock_dir,
+    read_jsonl,
+    strict_json,
+    write_json_atomic,
+    write_text_atomic,
+)
 
 # What a sweep writes into --out (and nothing else): only a directory holding these is replaced by --overwrite.
 SWEEP_ENTRIES = frozenset({"config.json", "metrics.jsonl", "summary.json", "state", "report", "tensorboard",
                            "pretrained"})
+CHOOSE_OUT = "choose another --out"
 
 
 def _our_temporary(name: str) -> bool:
-    """Hidden temporaries of our atomic writes (``.NAME.XXXX.tmp``) and checkpoint saves (``.NAME.tmp-PID``)."""
-    return name.startswith(".") and (name.endswith(".tmp") or ".tmp-" in name or ".old-" in name)
+    """Hidden temporaries of our atomic writes (``.NAME.XXXX.tmp``) and checkpoint saves (``.NAME.tmp-PID``), and
+    the writer's lock (``files.lock_dir``)."""
+    return name == LOCK_NAME or name.startswith(".") and (name.endswith(".tmp") or ".tmp-" in name
+                                                          or ".old-" in name)
 
 
 def _read_config(out: Path) -> dict | None:
@@ -90,9 +101,12 @@ def check_out(args: SweepArgs, sweep_cfg: dict, layout: dict | None = None) -> N
 
 
 def prepare_out(args: SweepArgs, config: dict) -> None:
-    """Create --out (replacing an old sweep with --overwrite) and write config.json: called once every check of the
-    run has passed, so a refused run leaves an old sweep as it was."""
+    """Take --out's lock (one process writes a sweep: ``files.lock_dir``), create it (replacing an old sweep with
+    --overwrite) and write config.json: called once every check of the run has passed, so a refused run leaves an
+    old sweep as it was."""
     out = Path(args.out)
+    if args.resume or (out.exists() and args.overwrite and any(out.iterdir())):
+        lock_dir(out, CHOOSE_OUT)  # before anything in it is read again or deleted
     if args.resume:
         return
     if out.exists() and args.overwrite and any(out.iterdir()):
@@ -100,6 +114,7 @@ def prepare_out(args: SweepArgs, config: dict) -> None:
             raise FileExistsError(f"--overwrite: {out} is not a sweep's output ({why}): refusing to delete it.")
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
+    lock_dir(out, CHOOSE_OUT)
     write_json_atomic(out / "config.json", strict_json(config))
 
 

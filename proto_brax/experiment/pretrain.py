@@ -106,6 +106,7 @@ def pretrain(args: PretrainArgs) -> dict:
     from proto_brax.agents.insample import OfflineHParams
     from proto_brax.data.cache import load_dataset
     from proto_brax.data.dataset import content_hash, transform_rewards, validate_for_env, with_returns_to_go
+    from proto_brax.files import lock_dir, release_dir
     from proto_brax.networks import NetworkConfig
     from proto_brax.train.offline import PretrainConfig, make_pretrain, run_pretrain
 
@@ -145,11 +146,18 @@ def pretrain(args: PretrainArgs) -> dict:
                          if k in ("critic_loss", "value_loss", "actor_loss", "bc_loss")})
 
     partial, done = partial_dir(args, data_hash) if args.resume else None, 0
+    if partial is not None:  # one process per resume state (the same configuration's twin would share it)
+        lock_dir(partial, "run without --resume (it keeps no resume state)")
     if partial is not None and (latest := checkpoints.latest_step(partial)) is not None:
         done = checkpoints.read_metadata(latest)["chunks_done"]
         print(f"resuming after chunk {done} of {cfg.steps // cfg.log_every} ({partial})", flush=True)
         bar.update(done * cfg.log_every)
-    state, hist, returns = run_pretrain(pre, hp, list(args.seeds), dataset, callback=on_chunk, resume=partial)
+    try:
+        state, hist, returns = run_pretrain(pre, hp, list(args.seeds), dataset, callback=on_chunk, resume=partial)
+    except BaseException:
+        if partial is not None:
+            release_dir(partial)
+        raise
     bar.close()
     seconds, ran = time.time() - t0, cfg.steps - done * cfg.log_every
     returns = np.asarray(returns)
@@ -177,6 +185,7 @@ def pretrain(args: PretrainArgs) -> dict:
     checkpoints.save_bundle(out, state, meta)
     if partial is not None:
         shutil.rmtree(partial, ignore_errors=True)  # (our own resume state, never the user's: the bundle is saved)
+        release_dir(partial)
     print(f"{args.algo} on {dname}: offline return {returns.mean():.1f} (per seed {np.round(returns.mean(-1), 1)}), "
           f"normalized {meta['offline_eval']['normalized_score_mean']:.1f}; {seconds:.0f} s -> {out}")
     return meta

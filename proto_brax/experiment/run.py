@@ -14,6 +14,7 @@ from proto_brax.experiment.args import SweepArgs
 from proto_brax.experiment.outdir import append_rows, prepare_out, truncate_metrics
 from proto_brax.experiment.plan import Plan, plan_sweep, pretrain_into_out
 from proto_brax.experiment.summary import episode_stats, summarize
+from proto_brax.files import release_dir
 
 
 def metric_rows(chunk: int, m: dict, grid, env: str, updates_per_s: float) -> list[dict]:
@@ -156,9 +157,12 @@ def run_sweep(args: SweepArgs) -> list[dict]:
     """Plan (every check, nothing written), prepare --out, pretrain (--pretrain), run (or resume) the grid, summarize;
     returns the per-point summary (empty on processes other than 0)."""
     plan = plan_sweep(args)
-    if plan.lead:
-        prepare_out(args, plan.config)
-    if args.pretrain is not None:
-        plan = pretrain_into_out(plan)
-    first = execute(plan)
-    return summarize(plan, first) if plan.lead else []
+    try:
+        if plan.lead:
+            prepare_out(args, plan.config)  # (takes --out's lock: one process writes a sweep)
+        if args.pretrain is not None:
+            plan = pretrain_into_out(plan)
+        first = execute(plan)
+        return summarize(plan, first) if plan.lead else []
+    finally:
+        release_dir(args.out)
