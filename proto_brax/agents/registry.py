@@ -91,9 +91,10 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            requires_bundle=True, proto_axes=True,
            defaults={"fidelity": Fidelity.official(), "learning_starts": 1, "policy": "gaussian",
                      "pretrain_hp": {"eql_weight_scale": 1.0, "eql_z_clip": 7.0}}),
-    Method("proto-official-online", "sac", "PROTO-SAC with the official code's online choices (FIDELITY.md): actor "
-           "on the critics' mean, α·(H − H̄) temperature loss, one random target critic without clipped double-Q, 10k "
-           "offline rows preloaded into the online buffer and updates from the first step; from our EQL bundle",
+    Method("proto-official-online", "sac", "PROTO-SAC with the official code's online choices (FIDELITY.md rows 1-5): "
+           "actor on the critics' mean, α·(H − H̄) temperature loss, one random target critic without clipped "
+           "double-Q, 10k offline rows preloaded into the online buffer and updates from the first step, the critic's "
+           "Adam state and target carried over; from our EQL bundle",
            bundles=("eql", "sql", "iql", "bc"), proto_axes=True,
            defaults={"fidelity": Fidelity.official(), "learning_starts": 1}),
     Method("proto-td3-official-online", "td3", "PROTO-TD3 with the official code's online choices (FIDELITY.md): "
