@@ -78,6 +78,8 @@ def random_bundle(cfg, env, hp):
 
 
 def main(args: Args) -> dict:
+    if envs.get_spec(args.env).default_backend == "mjx":  # before JAX starts its backend: the sweep's MJX flags
+        os.environ["XLA_FLAGS"] = envs.mjx_xla_flags()
     rows = args.chunk_steps * 50
     groups: dict = {}
     for name in args.methods:

@@ -591,7 +591,17 @@ def test_other_domains_get_a_section_with_success_rates_and_claims(tmp_path):
     # finals: proto-sac 80 + s, frozen 60 + s, direct 70 + s; success the same / 100
     assert "| proto-sac | 1 | 3 | 81.0 [" in text and "| 0.81 [" in text
     assert "| direct | – | 30.0 | 6.0 | 71.0 ± 0.8 | 71.0 [" in text and "| 3 | 0.71 [" in text
-    assert "### The paper's claims (1) and (2) on adroit" in text
+    assert "### The paper's three claims on adroit" in text
+    assert ("(3) PROTO costs about what SAC costs:** not measured on adroit yet: `python benchmarks/methods_cost.py "
+            "--env pen --methods proto-sac sac-scratch --reps 7 --out benchmarks/results/methods_cost_adroit.json`"
+            in text)
+    (tmp_path / "methods_cost_adroit.json").write_text(json.dumps({  # claim 3 from the domain's own measurement
+        "command": "python benchmarks/methods_cost.py --env pen", "date": "d", "status": "median of 2",
+        "results": {"proto-sac": {"seconds_per_1e5_steps": 130.0, "times_s": [1.3, 1.2]},
+                    "sac-scratch": {"seconds_per_1e5_steps": 100.0, "times_s": [1.0, 1.2]}}}))
+    text = "\n".join(mod.domain_section(locomotion_plan.DOMAINS["adroit"], root, tmp_path / "none"))
+    assert ("PROTO-SAC / SAC-from-scratch wall time per online step = 1.30 (`python benchmarks/methods_cost.py --env "
+            "pen`, d; median of 2; per-repetition ratios 1.00–1.30)") in text
     assert "PROTO ends above Frozen (τ = 0)** on 1 of 1 datasets" in text
     assert "--domain adroit --datasets pen-human --methods proto-sac frozen direct" in text
     assert (root / "pen-human" / "curves.png").stat().st_size > 0 and (root / "aggregate.png").exists()

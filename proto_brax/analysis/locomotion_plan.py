@@ -102,6 +102,13 @@ class Domain:
     dataset_size: int | None = None  # --dataset-size (None: the registered default)
     bundle_flags: dict[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
     """Per bundle kind, the pretraining flags of the domain (the PROTO paper's EQL; the IQL paper's IQL)."""
+    cost_env: str = "hopper"
+    """The env claim 3 (PROTO costs about what SAC costs) is timed on: ``benchmarks/methods_cost.py --env``."""
+
+    def cost_command(self) -> str:
+        """The measurement of claim 3 on this domain, written to ``benchmarks/results/methods_cost_NAME.json``."""
+        return (f"python benchmarks/methods_cost.py --env {self.cost_env} --methods proto-sac sac-scratch --reps 7 "
+                f"--out benchmarks/results/methods_cost_{self.name}.json")
 
 
 LOCOMOTION = Domain("locomotion", DATASETS, PAPER_METHODS + tuple(GRID_ABLATIONS), PRESET, 50_000, 2_500,
@@ -112,18 +119,21 @@ ADROIT = Domain("adroit", tuple(f"{t}-human" for t in ("pen", "door", "hammer"))
                 # (docs/MEASUREMENTS.md#adroit); the first evaluation falls at 10% of the run, where the drop is read
                 ("proto-sac", "frozen", "direct", "iql"), "paper-adroit", 10_000, 1_000, anneal_over_budget=False,
                 bundle_flags={"eql": ("--steps", "100000"),  # IQL's Adroit values: expectile 0.7, β 0.5
-                              "iql": ("--steps", "100000", "--hp", "temperature", "0.5")})
+                              "iql": ("--steps", "100000", "--hp", "temperature", "0.5")},
+                cost_env="pen")
 ANTMAZE = Domain("antmaze", tuple(f"antmaze-{m}" for m in ("umaze-diverse", "medium-play", "medium-diverse",
                                                              "large-diverse", "umaze", "large-play")),
                  ("proto-sac", "frozen", "direct", "iql"), "paper-antmaze", 50_000, 5_000, eval_episodes=20,
                  anneal_over_budget=False, dataset_size=1_000_000,
                  bundle_flags={"eql": ("--steps", "200000", "--hp", "alpha", "0.5"),  # IQL's AntMaze: 0.9, β 10
-                               "iql": ("--steps", "200000", "--hp", "expectile", "0.9", "temperature", "10")})
+                               "iql": ("--steps", "200000", "--hp", "expectile", "0.9", "temperature", "10")},
+                 cost_env="antmaze-medium")
 # Gymnasium's MuJoCo v5 locomotion on MJX (envs/gym_v5.py), datasets recorded on gymnasium's own envs: the
 # locomotion benchmark's preset, budget and paper methods (no ablations) on D4RL-comparable dynamics and references.
 MUJOCO_V5 = Domain("mujoco-v5", tuple(f"{env}-v5-{kind}" for env in ("hopper", "halfcheetah")
                                       for kind in ("medium", "medium-replay", "random")),
-                   ("proto-sac", "frozen", "direct", "iql"), PRESET, 50_000, 2_500, dataset_size=1_000_000)
+                   ("proto-sac", "frozen", "direct", "iql"), PRESET, 50_000, 2_500, dataset_size=1_000_000,
+                   cost_env="hopper-v5")
 DOMAINS = {d.name: d for d in (LOCOMOTION, ADROIT, ANTMAZE, MUJOCO_V5)}
 
 

@@ -294,8 +294,10 @@ def compare(table, pairs: list[str], other: str, key: str) -> tuple[int, str]:
     return wins, f"PROTO {ci_str(p_all)} vs {ci_str(o_all)}: {verdict(p_all, o_all)}"
 
 
-def claims(table, cost: dict | None, heading: str = "## The paper's three claims on Brax") -> list[str]:
-    out = [heading, ""]
+def claims(table, cost: dict | None, domain: Domain | None = None) -> list[str]:
+    """The paper's three claims on the sweeps of ``table``: Brax locomotion's (``domain`` None) or another domain's,
+    claim 3 from the cost measurement ``cost`` (PROTO-SAC and SAC from scratch timed side by side)."""
+    out = [f"### The paper's three claims on {domain.name}" if domain else "## The paper's three claims on Brax", ""]
     # (1) initial drop: PROTO's lowest early score relative to π₀ against direct finetuning's
     both = [d for d, per in table.items() if {"proto-sac", "direct"} <= set(per)]
     if both:
@@ -328,6 +330,9 @@ def claims(table, cost: dict | None, heading: str = "## The paper's three claims
                 f"runs {iqms}. With the mean of the last {LATE_EVALS} evaluations of each run instead: {late_wins} of "
                 f"{len(pairs)} datasets, IQM {late_iqms}.", ""]
     # (3) cost
+    if not cost and domain is not None:
+        out += [f"**(3) PROTO costs about what SAC costs:** not measured on {domain.name} yet: "
+                f"`{domain.cost_command()}`.", ""]
     if cost and "proto-sac" in cost.get("results", {}):
         res = cost["results"]
         sac = res.get("sac-scratch", {}).get("seconds_per_1e5_steps")
@@ -727,7 +732,10 @@ def domain_section(domain: Domain, results: Path, bundles: Path) -> list[str]:
     write_json_atomic(results / "aggregate.json", curves)
     lines += [f"![{domain.name} aggregate](results/{domain.name}/aggregate.png)", "",
               *aggregate_table(table, "final success IQM [95% CI]", success_cell), ""]
-    lines += claims(table, None, f"### The paper's claims (1) and (2) on {domain.name}")
+    cost_file = results.parent / f"methods_cost_{domain.name}.json"
+    cost = json.loads(cost_file.read_text()) if cost_file.exists() else None
+    lines += claims(table, cost if cost and {"proto-sac", "sac-scratch"} <= set(cost.get("results", {})) else None,
+                    domain)
     return lines + per_dataset(table, results, {}, domain)
 
 
