@@ -473,3 +473,10 @@ def test_locomotion_runner_commands_parse(tmp_path):
                                                                                 "diverse", 20, 1e6)
     assert maze.dataset_size == 1_000_000 and maze.alpha0 == (0.5,)
     assert "--hp expectile 0.9 temperature 10" in plan.missing_bundle("antmaze-umaze", "iql", tmp_path, plan.ANTMAZE)
+    # FIDELITY.md's AntMaze rows: PROTO-SAC with one of the official code's choices, under the AntMaze preset
+    rand, beh = (sweep.parse_args(plan.sweep_command("antmaze-umaze-diverse", m, tmp_path / m, (0,), 50_000, 5_000,
+                                                     False, False, domain=plan.ANTMAZE)[3:])
+                 for m in ("ours-but-random-target", "ours-but-behaviour-eval"))
+    assert rand.algo == beh.algo == "proto-sac" and not rand.clipped_double_q and rand.tau == (5e-5,)
+    assert rand.fidelity == dataclasses.replace(maze.fidelity, unclipped_target="random")
+    assert beh.fidelity == dataclasses.replace(maze.fidelity, eval_mode="behaviour")

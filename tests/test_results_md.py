@@ -47,7 +47,9 @@ def curve(method: str, seed: int, tau: float = 0.005) -> list[float]:
             "sac-scratch": [1.0, 2.0, 5.0, 10.0 + seed],
             "rlpd-utd1": [10.0, 20.0, 30.0, 40.0 + seed],
             "proto-official": [28.0 - seed, 50.0, 80.0 + seed, 80.0 + seed],
-            "official-but-temperature": [28.0, 50.0, 60.0, 30.0 + seed]}[method]
+            "official-but-temperature": [28.0, 50.0, 60.0, 30.0 + seed],
+            "ours-but-random-target": [30.0, 20.0, 30.0, 40.0 + seed],
+            "ours-but-behaviour-eval": [30.0, 28.0, 50.0, 79.0 + seed]}[method]
 
 
 def publish(root: Path, dataset: str, method: str, seeds=(0, 1, 2), taus=(0.005,), hashes=None,
@@ -605,7 +607,21 @@ def test_other_domains_get_a_section_with_success_rates_and_claims(tmp_path):
     assert "PROTO ends above Frozen (τ = 0)** on 1 of 1 datasets" in text
     assert "--domain adroit --datasets pen-human --methods proto-sac frozen direct" in text
     assert (root / "pen-human" / "curves.png").stat().st_size > 0 and (root / "aggregate.png").exists()
-    empty = "\n".join(mod.domain_section(locomotion_plan.DOMAINS["antmaze"], tmp_path / "antmaze", tmp_path / "none"))
+    assert "FIDELITY.md's rows on" not in text  # none of them ran on adroit
+    # FIDELITY.md's AntMaze rows: PROTO-SAC with one official choice, each against proto-sac
+    maze = tmp_path / "antmaze"
+    for method in ("proto-sac", "ours-but-random-target", "ours-but-behaviour-eval"):
+        publish(maze, "antmaze-umaze-diverse", method)
+    text = "\n".join(mod.domain_section(locomotion_plan.DOMAINS["antmaze"], maze, tmp_path / "none"))
+    assert "### FIDELITY.md's rows on antmaze" in text
+    assert "--methods ours-but-random-target ours-but-behaviour-eval --ablation-datasets DATASET" in text
+    assert ("| antmaze-umaze-diverse | ours-but-random-target | row 3: one target critic drawn at random per update "
+            "(clipped double-Q off) | 30.0 | 20.0 | 41.0 ± 0.8 | 41.0 [") in text
+    assert "CIs separate (proto-sac higher) |" in text and "| 80.0 ± 0.8 | 80.0 [" in text
+    assert "| ours-but-behaviour-eval | row 11: evaluated with sampled actions, as the policy trains |" in text
+    assert text.count("CIs overlap |") == 1  # 79 + s against 80 + s
+    assert "| ours-but-random-target |" not in text.split("FIDELITY.md's rows")[0]  # not a method of the tables
+    empty = "\n".join(mod.domain_section(locomotion_plan.DOMAINS["antmaze"], tmp_path / "antmaze2", tmp_path / "none"))
     assert "Not published yet: `python benchmarks/locomotion.py run --domain antmaze --single-core`" in empty
     v5 = locomotion_plan.DOMAINS["mujoco-v5"]
     assert v5.datasets[0] == "hopper-v5-medium" and locomotion_plan.env_of(v5.datasets[0]) == "hopper-v5"

@@ -81,7 +81,15 @@ FIDELITY_ABLATIONS = {
     "official-but-extraction": Ablation("proto-official", (), "rows 13-14: IVR's EQL extraction (weight scale 10, "
                                         "z clip 5) under the official policy class", bundle="eql-gaussian"),
 }
-ABLATIONS = {**GRID_ABLATIONS, **FIDELITY_ABLATIONS}
+# FIDELITY.md's rows that act only where clipped double-Q is off or success is reported (AntMaze): PROTO-SAC with one
+# official-code choice, the other way round from FIDELITY_ABLATIONS.
+OFFICIAL_ROWS = {
+    "ours-but-random-target": Ablation("proto-sac", ("--fidelity.unclipped-target", "random"),
+                                       "row 3: one target critic drawn at random per update (clipped double-Q off)"),
+    "ours-but-behaviour-eval": Ablation("proto-sac", ("--fidelity.eval-mode", "behaviour"),
+                                        "row 11: evaluated with sampled actions, as the policy trains"),
+}
+ABLATIONS = {**GRID_ABLATIONS, **FIDELITY_ABLATIONS, **OFFICIAL_ROWS}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -38,6 +38,7 @@ from proto_brax.analysis.locomotion_plan import (
     ETA0,
     FIDELITY_ABLATIONS,
     LOCOMOTION,
+    OFFICIAL_ROWS,
     PAPER_METHODS,
     TAU0,
     Domain,
@@ -447,6 +448,29 @@ def fidelity_ablations(table) -> list[str]:
             "[95% CI] | seeds | against proto-official |", "|---|---|---|---|---|---|---|---|---|", *out, ""]
 
 
+def official_rows(table, domain: Domain) -> list[str]:
+    """FIDELITY.md's rows measured on ``domain`` (``OFFICIAL_ROWS``): PROTO-SAC against PROTO-SAC with one of the
+    official code's choices, per dataset where they ran, with whether each one's final IQM CI separates."""
+    out = []
+    for d in sorted(d for d, per in table.items() if "proto-sac" in per and set(OFFICIAL_ROWS) & set(per)):
+        ref = [r["final"] for r in table[d]["proto-sac"]["runs"]]
+        out.append(f"| {d} | proto-sac | none (this suite's defaults) | {score_cells(table[d]['proto-sac']['runs'])} "
+                   "| – |")
+        for name, ablation in OFFICIAL_ROWS.items():
+            if name in table[d]:
+                runs = table[d][name]["runs"]
+                out.append(f"| {d} | {name} | {ablation.summary} | {score_cells(runs)} | "
+                           f"{separation([r['final'] for r in runs], ref, name, 'proto-sac')} |")
+    if not out:
+        return []
+    return [f"### FIDELITY.md's rows on {domain.name}", "",
+            f"`python benchmarks/locomotion.py run --domain {domain.name} --single-core --per-seed --methods "
+            f"{' '.join(OFFICIAL_ROWS)} --ablation-datasets DATASET --datasets DATASET`: PROTO-SAC with one of the "
+            "official code's choices that act only here.", "",
+            "| dataset | sweep | the official code's choice | initial (π₀) | lowest in first 10% | final mean ± std | "
+            "final IQM [95% CI] | seeds | against proto-sac |", "|---|---|---|---|---|---|---|---|---|", *out, ""]
+
+
 def final_mean(runs: list[dict]) -> str:
     finite = [r["final"] for r in runs if math.isfinite(r["final"])]
     return f"{fmt(np.mean(finite))} ± {fmt(np.std(finite))}" if finite else "–"
@@ -736,7 +760,7 @@ def domain_section(domain: Domain, results: Path, bundles: Path) -> list[str]:
     cost = json.loads(cost_file.read_text()) if cost_file.exists() else None
     lines += claims(table, cost if cost and {"proto-sac", "sac-scratch"} <= set(cost.get("results", {})) else None,
                     domain)
-    return lines + per_dataset(table, results, {}, domain)
+    return lines + official_rows(table, domain) + per_dataset(table, results, {}, domain)
 
 
 def main(args: Args) -> None:
