@@ -455,6 +455,13 @@ def test_locomotion_runner_commands_parse(tmp_path):
         "checkpoints/pretrained/halfcheetah-medium/eql-gaussian")
     assert "--hp eql_weight_scale 1 eql_z_clip 7" in plan.missing_bundle("halfcheetah-medium", "proto-official",
                                                                          tmp_path)
+    # and the fourth cell of rows 6 × 13-14: our policy class from the official EQL
+    policy = sweep.parse_args(command("halfcheetah-medium", "official-but-policy-class", resume=False)[3:])
+    assert policy.fidelity == official.fidelity and policy.policy == "tanh_gaussian" and policy.learning_starts == 1
+    assert policy.checkpoint == "checkpoints/pretrained/halfcheetah-medium/eql-official-tanh"
+    assert plan.missing_bundle("halfcheetah-medium", "official-but-policy-class", tmp_path) == (
+        "python -m proto_brax.pretrain --dataset halfcheetah-medium --algo eql --hp eql_weight_scale 1 eql_z_clip 7 "
+        "--out checkpoints/pretrained/halfcheetah-medium/eql-official-tanh")
     assert "official-but-temperature" not in plan.LOCOMOTION.methods  # run only when named
     # single_core: one device (5 seeds, no padding run) and one XLA thread for the child
     one = command("hopper-medium", "direct", resume=False, single_core=True)

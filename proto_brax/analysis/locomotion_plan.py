@@ -80,6 +80,11 @@ FIDELITY_ABLATIONS = {
     # exp(10 (Q − V)/α), z clip 5): with proto-official-online it splits row 6 from rows 13-14.
     "official-but-extraction": Ablation("proto-official", (), "rows 13-14: IVR's EQL extraction (weight scale 10, "
                                         "z clip 5) under the official policy class", bundle="eql-gaussian"),
+    # The fourth cell of rows 6 × 13-14: our tanh-squashed policy class, pretrained with the official EQL.
+    "official-but-policy-class": Ablation("proto-official", ("--policy", OURS.policy),
+                                          "row 6: the tanh-squashed policy class, pretrained with the official EQL",
+                                          bundle="eql-official-tanh",
+                                          bundle_hp=METHODS["proto-official"].defaults["pretrain_hp"]),
 }
 # FIDELITY.md's rows that act only where clipped double-Q is off or success is reported (AntMaze): PROTO-SAC with one
 # official-code choice, the other way round from FIDELITY_ABLATIONS.
@@ -213,13 +218,14 @@ def missing_bundle(dataset: str, method: str, pretrained: Path, domain: Domain =
     if not m.bundles:
         return None
     kind = m.bundles[0]  # the bundle kind that --checkpoint auto picks
-    bundle, hp = m.auto_bundle, m.defaults.get("pretrain_hp")
+    bundle, hp, policy = m.auto_bundle, m.defaults.get("pretrain_hp"), m.defaults.get("policy", "tanh_gaussian")
     if (ablation := ABLATIONS.get(method)) is not None and ablation.bundle is not None:
         bundle, hp = ablation.bundle, ablation.bundle_hp
+        if "--policy" in ablation.flags:
+            policy = ablation.flags[ablation.flags.index("--policy") + 1]
     if (pretrained / dataset / bundle / "metadata.json").exists():
         return None
-    extra = "".join(f" {f}" for f in (*domain.bundle_flags.get(kind, ()),
-                                      *pretrain_flags(m.defaults.get("policy", "tanh_gaussian"), hp)))
+    extra = "".join(f" {f}" for f in (*domain.bundle_flags.get(kind, ()), *pretrain_flags(policy, hp)))
     return (f"python -m proto_brax.pretrain --dataset {dataset} --algo {kind}{extra} --out "
             f"checkpoints/pretrained/{dataset}/{bundle}")
 
