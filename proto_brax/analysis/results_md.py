@@ -351,10 +351,12 @@ def claim_cost(args: Args, cost: dict | None) -> dict | None:
     """The measurement claim 3 uses: the dedicated one (``args.overhead``) when it holds both programs, else the cost
     table's (``cost``, already read)."""
     dedicated = json.loads(args.overhead.read_text()) if args.overhead.exists() else None
-    for measured in (dedicated, cost):
-        if measured and {"proto-sac", "sac-scratch"} <= set(measured.get("results", {})):
-            return measured
-    return None
+    return next((m for m in (dedicated, cost) if times_both(m)), None)
+
+
+def times_both(measured: dict | None) -> bool:
+    """Whether a cost measurement timed both programs claim 3 compares (PROTO-SAC and SAC from scratch)."""
+    return bool(measured) and {"proto-sac", "sac-scratch"} <= set(measured.get("results", {}))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -418,6 +420,15 @@ def comparison(table, c: Comparison) -> list[str]:
                     "PROTO-SAC IQM [95% CI] |", "|---|---|---|---|---|---|---|", *rows, ""]
 
 
+def versus_rows(table, d: str, ref: str, variants: list[tuple[str, str]]) -> list[str]:
+    """Dataset ``d``'s table rows of the sweeps ``variants`` (name, what it changes) that ran there, each with whether
+    its final IQM CI separates from the sweep ``ref``'s ("–" on ``ref``'s own row)."""
+    finals = [r["final"] for r in table[d][ref]["runs"]]
+    return [f"| {d} | {name} | {what} | {score_cells(table[d][name]['runs'])} | "
+            f"{'–' if name == ref else separation([r['final'] for r in table[d][name]['runs']], finals, name, ref)} |"
+            for name, what in variants if name in table[d]]
+
+
 def fidelity_ablations(table) -> list[str]:
     """FIDELITY.md's rows one at a time, per dataset where they ran: proto-official, each of its choices put back to
     ours (``FIDELITY_ABLATIONS``), proto-official-online (our policy class and pretraining) and PROTO-SAC, with whether
@@ -425,18 +436,11 @@ def fidelity_ablations(table) -> list[str]:
     out = []
     put_back = {*FIDELITY_ABLATIONS, "proto-official-online"}
     for d in sorted(d for d, per in table.items() if "proto-official" in per and put_back & set(per)):
-        ref = [r["final"] for r in table[d]["proto-official"]["runs"]]
-        variants = [("proto-official", "all the official code's choices"),
-                    *((k, a.summary) for k, a in FIDELITY_ABLATIONS.items()),
-                    ("proto-official-online", "rows 6, 13, 14: our policy class and EQL bundle"),
-                    ("proto-sac", "none of them")]
-        for name, what in variants:
-            if name not in table[d]:
-                continue
-            runs = table[d][name]["runs"]
-            verdict = ("–" if name == "proto-official" else
-                       separation([r["final"] for r in runs], ref, name, "proto-official"))
-            out.append(f"| {d} | {name} | {what} | {score_cells(runs)} | {verdict} |")
+        out += versus_rows(table, d, "proto-official", [
+            ("proto-official", "all the official code's choices"),
+            *((k, a.summary) for k, a in FIDELITY_ABLATIONS.items()),
+            ("proto-official-online", "rows 6, 13, 14: our policy class and EQL bundle"),
+            ("proto-sac", "none of them")])
     if not out:
         return []
     return ["### proto-official's rows one at a time", "",
@@ -453,14 +457,8 @@ def official_rows(table, domain: Domain) -> list[str]:
     official code's choices, per dataset where they ran, with whether each one's final IQM CI separates."""
     out = []
     for d in sorted(d for d, per in table.items() if "proto-sac" in per and set(OFFICIAL_ROWS) & set(per)):
-        ref = [r["final"] for r in table[d]["proto-sac"]["runs"]]
-        out.append(f"| {d} | proto-sac | none (this suite's defaults) | {score_cells(table[d]['proto-sac']['runs'])} "
-                   "| – |")
-        for name, ablation in OFFICIAL_ROWS.items():
-            if name in table[d]:
-                runs = table[d][name]["runs"]
-                out.append(f"| {d} | {name} | {ablation.summary} | {score_cells(runs)} | "
-                           f"{separation([r['final'] for r in runs], ref, name, 'proto-sac')} |")
+        out += versus_rows(table, d, "proto-sac", [("proto-sac", "none (this suite's defaults)"),
+                                                   *((k, a.summary) for k, a in OFFICIAL_ROWS.items())])
     if not out:
         return []
     return [f"### FIDELITY.md's rows on {domain.name}", "",
@@ -758,8 +756,7 @@ def domain_section(domain: Domain, results: Path, bundles: Path) -> list[str]:
               *aggregate_table(table, "final success IQM [95% CI]", success_cell), ""]
     cost_file = results.parent / f"methods_cost_{domain.name}.json"
     cost = json.loads(cost_file.read_text()) if cost_file.exists() else None
-    lines += claims(table, cost if cost and {"proto-sac", "sac-scratch"} <= set(cost.get("results", {})) else None,
-                    domain)
+    lines += claims(table, cost if times_both(cost) else None, domain)
     return lines + official_rows(table, domain) + per_dataset(table, results, {}, domain)
 
 

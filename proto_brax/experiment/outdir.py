@@ -105,11 +105,12 @@ def prepare_out(args: SweepArgs, config: dict) -> None:
     --overwrite) and write config.json: called once every check of the run has passed, so a refused run leaves an
     old sweep as it was."""
     out = Path(args.out)
-    if args.resume or (out.exists() and args.overwrite and any(out.iterdir())):
+    replacing = not args.resume and out.exists() and args.overwrite and any(out.iterdir())
+    if args.resume or replacing:
         lock_dir(out, CHOOSE_OUT)  # before anything in it is read again or deleted
     if args.resume:
         return
-    if out.exists() and args.overwrite and any(out.iterdir()):
+    if replacing:
         if why := not_a_sweep(out):  # (checked before; the directory may have changed since)
             raise FileExistsError(f"--overwrite: {out} is not a sweep's output ({why}): refusing to delete it.")
         shutil.rmtree(out)
