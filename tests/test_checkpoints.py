@@ -161,6 +161,40 @@ def test_checkpoints_cli_lists_bundles(bundle, capsys):
     assert "| `eql` | eql | point-noisy | [0, 1] | 400 |" in index
 
 
+def test_evaluate_reproduces_the_recorded_offline_evaluation_and_draws_new_ones(bundle, capsys):
+    root, _, meta = bundle
+    returns, _ = checkpoints_cli.evaluate_bundle(root / "eql", repeats=3)
+    assert returns.shape == (2, 3, ARGS["eval_episodes"])  # [bundle seeds, repetitions, episodes]
+    # Repetition 0 is pretraining's own evaluation (its keys, its episode count), per seed of the bundle.
+    np.testing.assert_allclose(returns[:, 0].mean(-1), meta["offline_eval"]["returns_per_seed"], rtol=1e-4)
+    assert not np.allclose(returns[:, 1], returns[:, 0])  # the other repetitions start from other states
+    assert not np.allclose(returns[0], returns[1])  # each seed's own actor
+    checkpoints_cli.main(["evaluate", str(root / "eql"), "4", "2"])
+    out = capsys.readouterr().out
+    assert out.count("recorded:") == 2 and "16 episodes on point" in out
+    with pytest.raises(SystemExit, match="positive integers"):
+        checkpoints_cli.main(["evaluate", str(root / "eql"), "0"])
+
+
+def test_static_dataclass_fields_are_not_saved_and_come_back_from_the_target(tmp_path):
+    """A pytree dataclass's static fields (flax ``pytree_node=False``, MJX's typed-int fields such as the constraint
+    counts ``Data._impl.ne``) are not leaves: orbax never stores them. Restoring into such a target failed on them
+    ("Unsupported type"), so no MJX sweep could resume."""
+    from flax import struct
+
+    @struct.dataclass
+    class Node:
+        x: jax.Array
+        count: int = struct.field(pytree_node=False)
+
+    tree = {"node": Node(x=np.arange(3.0, dtype=np.float32), count=np.int64(5))}
+    checkpoints.save(tmp_path / "c", tree, {})
+    target = {"node": Node(x=np.zeros(3, np.float32), count=np.int64(5))}
+    restored, _ = checkpoints.restore(tmp_path / "c", target)
+    np.testing.assert_array_equal(restored["node"].x, [0.0, 1.0, 2.0])
+    assert restored["node"].count == 5
+
+
 def test_interrupted_save_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
     tree = {"w": np.arange(4.0, dtype=np.float32)}
     checkpoints.save(tmp_path / "c", tree, {"n": 1})

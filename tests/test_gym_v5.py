@@ -138,6 +138,24 @@ def test_reset_observation_matches_gymnasium_after_forward(pair):
     assert set(state.metrics) == {"x_velocity", "reward_forward", "reward_ctrl", "reward_survive", "reward_contact"}
 
 
+def test_a_stepped_mjx_state_round_trips_through_a_checkpoint(tmp_path):
+    """A sweep's resume restores its envs' MJX states: every leaf bit for bit, the static fields (``ne``, …) the
+    target's. Failed before checkpoints saved and restored only the pytree's own fields."""
+    from proto_brax import checkpoints
+
+    env = gym_v5.GymV5("hopper")
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(3), 2))
+    state = jax.jit(jax.vmap(env.step))(state, jnp.full((2, env.action_size), 0.3))
+    checkpoints.save(tmp_path / "c", {"env": state}, {"chunks_done": 1})
+    fresh = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(4), 2))  # a sweep's own target
+    restored, meta = checkpoints.restore(tmp_path / "c", {"env": fresh})
+    assert meta["chunks_done"] == 1
+    assert jax.tree.structure(restored["env"]) == jax.tree.structure(state)
+    for a, b in zip(jax.tree.leaves(restored["env"]), jax.tree.leaves(state)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert restored["env"].pipeline_state._impl.ne == state.pipeline_state._impl.ne
+
+
 def test_unknown_task_and_overrides():
     with pytest.raises(ValueError):
         gym_v5.get_task("swimmer")

@@ -17,14 +17,24 @@ def iqm(x, axis=-1) -> np.ndarray:
 
 def iqm_ci(x, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
     """(IQM, low, high) with a percentile bootstrap over the values; NaNs (diverged runs) are dropped first."""
+    return bootstrap_ci(x, iqm, confidence, n_resamples, seed)
+
+
+def mean_ci(x, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """(mean, low, high) with a percentile bootstrap over the values (evaluation episodes); NaNs dropped first."""
+    return bootstrap_ci(x, lambda v, axis=-1: np.mean(v, axis=axis), confidence, n_resamples, seed)
+
+
+def bootstrap_ci(x, statistic, confidence: float, n_resamples: int, seed: int) -> tuple[float, float, float]:
+    """(statistic, low, high): ``statistic(values, axis)`` of the finite values and its percentile-bootstrap CI."""
     x = np.asarray(x, np.float64)
     x = x[np.isfinite(x)]
     if x.size == 0:
         return float("nan"), float("nan"), float("nan")
-    point = float(iqm(x))
+    point = float(statistic(x, axis=-1))
     if x.size == 1 or np.all(x == x[0]):
         return point, point, point
-    res = stats.bootstrap((x,), iqm, confidence_level=confidence, n_resamples=n_resamples, method="percentile",
+    res = stats.bootstrap((x,), statistic, confidence_level=confidence, n_resamples=n_resamples, method="percentile",
                           random_state=np.random.default_rng(seed), vectorized=True, axis=-1)
     return point, float(res.confidence_interval.low), float(res.confidence_interval.high)
 

@@ -146,10 +146,22 @@ def _is_namedtuple(x) -> bool:
     return isinstance(x, tuple) and hasattr(x, "_fields")
 
 
+def _tree_fields(x) -> list[str]:
+    """A dataclass node's fields that are pytree children, the ones orbax stores. MJX's ``PyTreeNode`` and flax's
+    ``struct`` keep the others as static metadata outside the tree (MJX's constraint counts ``Data._impl.ne``, …):
+    never saved, and kept from the target on restore."""
+    try:
+        children, _ = jax.tree_util.flatten_one_level_with_keys(x)
+    except ValueError:  # a dataclass that is not a registered pytree node: all of its fields
+        return [f.name for f in dataclasses.fields(x)]
+    return [k.name for k, _ in children]
+
+
 def _plain(x):
-    """Dataclass nodes as dicts of their fields (None kept), the rest as is: the structure orbax stores them in."""
+    """Dataclass nodes as dicts of their pytree fields (None kept), the rest as is: the structure orbax stores them
+    in."""
     if dataclasses.is_dataclass(x) and not isinstance(x, type):
-        return {f.name: _plain(getattr(x, f.name)) for f in dataclasses.fields(x)}
+        return {name: _plain(getattr(x, name)) for name in _tree_fields(x)}
     if isinstance(x, dict):
         return {k: _plain(v) for k, v in x.items()}
     if _is_namedtuple(x):
@@ -187,9 +199,9 @@ def _rebuild(t, r):
         return None
     if isinstance(t, jax.ShapeDtypeStruct) and math.prod(t.shape) == 0:
         return np.zeros(t.shape, t.dtype)
-    if dataclasses.is_dataclass(t) and not isinstance(t, type):
-        return t.replace(**{f.name: _rebuild(getattr(t, f.name), (r or {}).get(f.name))
-                            for f in dataclasses.fields(t)})
+    if dataclasses.is_dataclass(t) and not isinstance(t, type):  # (static fields stay the target's)
+        return dataclasses.replace(t, **{name: _rebuild(getattr(t, name), (r or {}).get(name))
+                                         for name in _tree_fields(t)})
     if isinstance(t, dict):
         return {k: _rebuild(v, r[k]) for k, v in t.items()}
     if _is_namedtuple(t):

@@ -1,4 +1,5 @@
-"""``python -m proto_brax.checkpoints list | show | index | checksum``: what is committed under ``checkpoints/``.
+"""``python -m proto_brax.checkpoints list | show | index | checksum | evaluate``: what is committed under
+``checkpoints/``, and a bundle's policy evaluated again.
 
 The command line sits above the library (``proto_brax.checkpoints``): the index reads the behaviour snapshots through
 the dataset generator, which itself loads them with the library.
@@ -51,14 +52,72 @@ def index_markdown(root: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def evaluate_bundle(path: str | Path, episodes: int | None = None, repeats: int = 1):
+    """Returns [bundle seeds, repeats, episodes] of the bundle's policy (mean action) evaluated as pretraining
+    evaluates it (``PretrainConfig.eval_episodes`` episodes side by side, or the hands' one at a time), the r-th
+    repetition of seed s with the key ``fold_in(PRNGKey(s), r)``: repetition 0 with the recorded number of episodes
+    is the evaluation recorded in ``offline_eval``, up to the rounding of a larger batch.
+
+    One evaluation of 10 episodes is a noisy estimate where returns are all-or-nothing (the Adroit hands); more
+    repetitions give the spread that the recorded number was drawn from."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from proto_brax.checkpoints import load_bundle
+    from proto_brax.networks import NetworkConfig
+    from proto_brax.train.offline import PretrainConfig, make_pretrain
+
+    state, meta = load_bundle(path)
+    net = NetworkConfig(**{**meta["net"], "hidden": tuple(meta["net"]["hidden"])})
+    episodes = episodes or meta.get("offline_eval", {}).get("episodes", PretrainConfig.eval_episodes)
+    pre = make_pretrain(PretrainConfig(algo=meta["algo"], env=meta["env"], net=net, steps=1, log_every=1,
+                                       eval_episodes=episodes))
+    seeds = jax.vmap(jax.random.PRNGKey)(jnp.asarray(meta["seeds"], jnp.uint32))
+    keys = jax.vmap(lambda k: jax.vmap(lambda r: jax.random.fold_in(k, r))(jnp.arange(repeats)))(seeds)
+    per_seed = jax.vmap(jax.vmap(pre.evaluate, in_axes=(None, 0)))  # over the bundle's seeds, then the repetitions
+    return np.asarray(jax.device_get(jax.jit(per_seed)(state.actor, keys))), meta
+
+
+def print_evaluation(path: str, episodes: int | None, repeats: int) -> None:
+    """``evaluate``: each seed's and repetition's normalized score, the recorded one, and the mean over all."""
+    import numpy as np
+
+    from proto_brax import envs
+    from proto_brax.analysis.stats import mean_ci
+
+    returns, meta = evaluate_bundle(path, episodes, repeats)
+    env = meta["env"]
+    scores = np.asarray(envs.normalized_score(env, returns))  # [seeds, repeats, episodes]
+    recorded = meta.get("offline_eval", {}).get("normalized_score_per_seed")
+    for i, seed in enumerate(meta["seeds"]):
+        per = ", ".join(f"{x:.1f}" for x in scores[i].mean(-1))
+        rec = f" (recorded: {recorded[i]:.1f})" if recorded else ""
+        print(f"seed {seed}: normalized score per repetition of {returns.shape[-1]} episodes: {per}{rec}")
+    mean, lo, hi = mean_ci(scores.reshape(-1))
+    print(f"{path}: {scores.size} episodes on {env}, normalized {mean:.1f} [{lo:.1f}, {hi:.1f}] (mean, 95% "
+          f"bootstrap CI over episodes)")
+
+
 def main(argv: list[str] | None = None) -> None:
-    """python -m proto_brax.checkpoints list [ROOT] | show PATH | index [ROOT] | checksum PATH..."""
+    """python -m proto_brax.checkpoints list [ROOT] | show PATH | index [ROOT] | checksum PATH... | evaluate PATH
+    [EPISODES [REPEATS]]"""
     import sys
 
     argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] not in ("list", "show", "index", "checksum"):
+    if not argv or argv[0] not in ("list", "show", "index", "checksum", "evaluate"):
         raise SystemExit("usage: python -m proto_brax.checkpoints list [ROOT=checkpoints] | show PATH | index [ROOT] "
-                         "| checksum PATH... (record or verify bundles' content checksums)")
+                         "| checksum PATH... (record or verify bundles' content checksums) | evaluate PATH [EPISODES "
+                         "[REPEATS]] (the bundle's policy evaluated again)")
+    if argv[0] == "evaluate":
+        if len(argv) < 2 or not all(a.isdigit() and int(a) > 0 for a in argv[2:4]) or len(argv) > 4:
+            raise SystemExit("usage: python -m proto_brax.checkpoints evaluate PATH [EPISODES [REPEATS]] (positive "
+                             "integers; default: the recorded evaluation's episodes, 1 repetition)")
+        from proto_brax.train.grid import size_cpu_pool
+
+        size_cpu_pool(1)  # before JAX's backend starts: the MJX hands' batched LAPACK needs a one-thread pool
+        print_evaluation(argv[1], *(int(a) for a in argv[2:4]))
+        return
     if argv[0] == "checksum":
         for p in argv[1:]:
             print(f"{p}: content_sha256 {add_checksum(p)}")
