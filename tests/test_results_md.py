@@ -636,6 +636,36 @@ def test_offline_score_reads_the_bundle_the_method_starts_from(tmp_path):
         (tmp_path / "d" / kind).mkdir(parents=True)
         (tmp_path / "d" / kind / "metadata.json").write_text(json.dumps({"offline_eval": {"normalized_score_mean":
                                                                                           score}}))
-    assert mod.offline_score(tmp_path, "d", "proto-sac") == 48.9
-    assert mod.offline_score(tmp_path, "d", "proto-official") == 44.5
-    assert math.isnan(mod.offline_score(tmp_path, "d", "sac-scratch"))
+    assert mod.offline_score(mod.bundle_meta(tmp_path, "d", "proto-sac")) == 48.9
+    assert mod.offline_score(mod.bundle_meta(tmp_path, "d", "proto-official")) == 44.5
+    assert math.isnan(mod.offline_score(mod.bundle_meta(tmp_path, "d", "sac-scratch")))
+
+
+def test_the_critic_switch_table_sets_each_methods_online_loss_against_its_bundles(tmp_path):
+    """The jump at the offline → online switch: first-period online critic loss (mean over seeds) over the loss of
+    the bundle the method starts from; Q mean offline → first → last period. Distinct numbers per seed, period and
+    bundle, so a mix-up of first and last or of the two bundles changes the table."""
+    mod = load_module()
+    root = tmp_path / "adroit"
+    for method, scale in (("proto-sac", 1.0), ("direct", 3.0)):
+        d = publish(root, "pen-human", method)
+        rows = [json.loads(line) for line in gzip.open(d / "metrics.jsonl.gz", "rt")]
+        with gzip.open(d / "metrics.jsonl.gz", "wt") as f:  # loss 1000·scale·(1 + seed) first, then 10× lower
+            f.write("\n".join(json.dumps({**r, **({} if r.get("initial") else {
+                "critic_loss": scale * 1000.0 * (1 + r["seed"]) / (1 if r["step"] == STEPS[0] else 10),
+                "q_mean": 50.0 + r["step"] / 100})}) for r in rows) + "\n")
+    bundles = tmp_path / "bundles"
+    for kind, loss in (("eql", [40.0, 60.0]),):
+        (bundles / "pen-human" / kind).mkdir(parents=True)
+        (bundles / "pen-human" / kind / "metadata.json").write_text(json.dumps(
+            {"final_losses": {"critic_loss": loss, "q_mean": [70.0, 90.0]}}))
+    table = mod.collect(root, bundles)
+    text = "\n".join(mod.critic_switch(table))
+    # seeds 0-2: first-period losses 1000, 2000, 3000 (mean 2000) against the bundle's 50: a 40× jump; Q 51 at the
+    # first evaluation (step 100), 60 at the last (step 1000)
+    assert "| pen-human | proto-sac | 50 | 2000 | 40.0× | 200 | 80 → 51 → 60 |" in text
+    assert "| pen-human | direct | 50 | 6000 | 120.0× | 600 | 80 → 51 → 60 |" in text
+    assert mod.critic_switch(mod.collect(root, tmp_path / "none")) != []  # no bundle: the jump is "–"
+    assert "| – | 2000 | –× |" in "\n".join(mod.critic_switch(mod.collect(root, tmp_path / "none")))
+
+

@@ -92,7 +92,11 @@ def run_scores(sweep: Sweep) -> list[dict]:
         if not rows:
             continue
         curve = [float(row["normalized_score"]) for row in rows]
-        out.append({"seed": r.seed, "point": r.point, "initial": init[0]["normalized_score"] if init else math.nan,
+        # the critic over the first and the last evaluation period (NaN where a method logs none)
+        critic = {f"{k}_{at}": float(row.get(k, math.nan)) for k in ("critic_loss", "q_mean")
+                  for at, row in (("first", rows[0]), ("last", rows[-1]))}
+        out.append({**critic, "seed": r.seed, "point": r.point,
+                    "initial": init[0]["normalized_score"] if init else math.nan,
                     "drop": float(lowest_early_scores([rows])[0]), "final": curve[-1],
                     "success_final": float(rows[-1].get("success_rate", math.nan)),  # Adroit, AntMaze
                     "late": float(np.mean(curve[-LATE_EVALS:])), "lowest": min(curve),
@@ -100,15 +104,23 @@ def run_scores(sweep: Sweep) -> list[dict]:
     return out
 
 
-def offline_score(bundles: Path, dataset: str, method: str) -> float:
-    """The normalized score of the bundle ``method`` starts from (its kind plus the method's suffix: proto-official's
-    eql-official), as its pretraining evaluated it; NaN without one."""
+def bundle_meta(bundles: Path, dataset: str, method: str) -> dict:
+    """The metadata of the bundle ``method`` starts from (its kind plus the method's suffix: proto-official's
+    eql-official); {} without one."""
     name = method_of(method).auto_bundle
     meta = bundles / dataset / name / "metadata.json" if name else None
-    if meta is None or not meta.exists():
-        return math.nan
-    ev = json.loads(meta.read_text()).get("offline_eval") or {}
-    return float(ev.get("normalized_score_mean", math.nan))
+    return json.loads(meta.read_text()) if meta is not None and meta.exists() else {}
+
+
+def offline_score(meta: dict) -> float:
+    """The bundle's normalized score as its pretraining evaluated it; NaN without one."""
+    return float((meta.get("offline_eval") or {}).get("normalized_score_mean", math.nan))
+
+
+def pretrained_losses(meta: dict) -> dict[str, float]:
+    """The bundle's critic loss and Q mean over pretraining's last chunk (mean over its seeds); NaN without them."""
+    last = meta.get("final_losses") or {}
+    return {k: float(np.mean(last[k])) if k in last else math.nan for k in ("critic_loss", "q_mean")}
 
 
 def collect(results: Path, bundles: Path) -> dict[str, dict[str, dict]]:
@@ -119,9 +131,10 @@ def collect(results: Path, bundles: Path) -> dict[str, dict[str, dict]]:
     for d in sorted(p for p in results.glob("*/*") if (p / "summary.json").exists()):
         dataset, method = d.parent.name, d.name
         sweep = load_sweep(d)
+        meta = bundle_meta(bundles, dataset, method)
         table.setdefault(dataset, {})[method] = {
             "runs": run_scores(sweep), "summary": sweep.summary, "config": sweep.config,
-            "offline": offline_score(bundles, dataset, method),
+            "offline": offline_score(meta), "pretrained": pretrained_losses(meta),
             # a dataset-free method's sweep is copied to each dataset of its env: aggregates count each sweep once
             # (a sweep's config names its dataset and its output directory: distinct sweeps never share it)
             "sweep_id": hashlib.sha256(json.dumps([sweep.config, sweep.rows], sort_keys=True).encode()).hexdigest()}
@@ -345,6 +358,40 @@ def claims(table, cost: dict | None, domain: Domain | None = None) -> list[str]:
                 f"{fmt(ratio, 2)} (`{cost.get('command', '')}`, {cost.get('date', '')}; "
                 f"{cost.get('status', '')}{spread}).", ""]
     return out
+
+
+def finite_mean(values) -> float:
+    """The mean of the finite values; NaN when there is none."""
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
+def critic_switch(table) -> list[str]:
+    """The critic at the offline → online switch, per dataset and method: the bundle's critic loss and Q mean over
+    pretraining's last chunk against the online ones over the first and the last evaluation period (means over the
+    seeds). A jump in the loss at the switch that every method shares is the critic's, not the actor penalty's."""
+    rows = []
+    for d, per in table.items():
+        for m in methods_of(per):
+            runs, pre = per[m]["runs"], per[m].get("pretrained") or {}
+            mean = lambda k, runs=runs: finite_mean([r.get(k, math.nan) for r in runs])  # noqa: E731
+            first, jump = mean("critic_loss_first"), math.nan
+            if not math.isfinite(first):
+                continue
+            if math.isfinite(pre.get("critic_loss", math.nan)) and pre["critic_loss"] > 0:
+                jump = first / pre["critic_loss"]
+            rows.append(f"| {d} | {m} | {fmt(pre.get('critic_loss', math.nan), 0)} | {fmt(first, 0)} | "
+                        f"{fmt(jump)}× | {fmt(mean('critic_loss_last'), 0)} | {fmt(pre.get('q_mean', math.nan), 0)} → "
+                        f"{fmt(mean('q_mean_first'), 0)} → {fmt(mean('q_mean_last'), 0)} |")
+    if not rows:
+        return []
+    return ["### The critic at the offline → online switch", "",
+            "Critic loss: the bundle's over pretraining's last chunk (offline batches), then online over the first "
+            "and the last evaluation period (the method's batches), means over seeds; Q mean likewise. A loss that "
+            "jumps by the same factor under every method, penalty or not, comes from the critic's switch (its "
+            "targets, batches and fresh optimizer: FIDELITY.md rows 4–5), not from the actor.", "",
+            "| dataset | method | critic loss, offline | online, first period | jump | online, last period | "
+            "Q mean: offline → first → last |", "|---|---|---|---|---|---|---|", *rows, ""]
 
 
 def claim_cost(args: Args, cost: dict | None) -> dict | None:
@@ -757,7 +804,7 @@ def domain_section(domain: Domain, results: Path, bundles: Path) -> list[str]:
     cost_file = results.parent / f"methods_cost_{domain.name}.json"
     cost = json.loads(cost_file.read_text()) if cost_file.exists() else None
     lines += claims(table, cost if times_both(cost) else None, domain)
-    return lines + official_rows(table, domain) + per_dataset(table, results, {}, domain)
+    return lines + critic_switch(table) + official_rows(table, domain) + per_dataset(table, results, {}, domain)
 
 
 def main(args: Args) -> None:
