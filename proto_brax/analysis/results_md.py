@@ -773,7 +773,10 @@ DOMAIN_NOTES = {
                "a box; docs/MEASUREMENTS.md#adroit measures what that costs), D4RL's rewards, time limits and "
                "reference scores (normalized 0 = random, 100 = D4RL's expert), D4RL's success rule (the goal held "
                "for more than 20 steps on pen, 25 on door and hammer). The `human` sets are 25 episodes of D4RL's "
-               "own DAPG expert with N(0, 0.2²) action noise, recorded on the same capsule model natively."),
+               "own DAPG expert with N(0, 0.2²) action noise, recorded on the same capsule model natively. An "
+               "episode either succeeds or not (door: return ≈ 2,700 or ≈ −50), so one 10-episode evaluation is "
+               "noisy: the `offline` column is one such evaluation, π₀ the mean of the seeds' five; `python -m "
+               "proto_brax.checkpoints evaluate checkpoints/pretrained/door-human/eql 10 5` shows the spread."),
     "antmaze": ("AntMaze", "The AntMaze port on MJX (README: AntMaze); the normalized score is the success rate in "
                 "percent (D4RL's 0/1 reward), and steps to goal are the successful episodes' lengths."),
 }
