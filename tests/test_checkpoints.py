@@ -172,8 +172,12 @@ def test_evaluate_reproduces_the_recorded_offline_evaluation_and_draws_new_ones(
     checkpoints_cli.main(["evaluate", str(root / "eql"), "4", "2"])
     out = capsys.readouterr().out
     assert out.count("recorded:") == 2 and "16 episodes on point" in out
+    checkpoints_cli.main(["evaluate", str(root / "eql")])  # the recorded evaluation's size, once per seed
+    assert f"{2 * ARGS['eval_episodes']} episodes on point" in capsys.readouterr().out
     with pytest.raises(SystemExit, match="positive integers"):
         checkpoints_cli.main(["evaluate", str(root / "eql"), "0"])
+    with pytest.raises(SystemExit, match="^error: .*metadata"):
+        checkpoints_cli.main(["evaluate", str(root / "missing")])
 
 
 def test_static_dataclass_fields_are_not_saved_and_come_back_from_the_target(tmp_path):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from proto_brax.checkpoints import add_checksum, find_bundles, read_metadata
+from proto_brax.checkpoints import CheckpointError, add_checksum, find_bundles, read_metadata
 from proto_brax.files import write_text_atomic
 
 
@@ -79,7 +79,7 @@ def evaluate_bundle(path: str | Path, episodes: int | None = None, repeats: int 
     return np.asarray(jax.device_get(jax.jit(per_seed)(state.actor, keys))), meta
 
 
-def print_evaluation(path: str, episodes: int | None, repeats: int) -> None:
+def print_evaluation(path: str, episodes: int | None = None, repeats: int = 1) -> None:
     """``evaluate``: each seed's and repetition's normalized score, the recorded one, and the mean over all."""
     import numpy as np
 
@@ -116,7 +116,10 @@ def main(argv: list[str] | None = None) -> None:
         from proto_brax.train.grid import size_cpu_pool
 
         size_cpu_pool(1)  # before JAX's backend starts: the MJX hands' batched LAPACK needs a one-thread pool
-        print_evaluation(argv[1], *(int(a) for a in argv[2:4]))
+        try:
+            print_evaluation(argv[1], *(int(a) for a in argv[2:4]))
+        except CheckpointError as e:  # not a bundle, or a corrupt one: the reason and the fix, in one line
+            raise SystemExit(f"error: {e}") from None
         return
     if argv[0] == "checksum":
         for p in argv[1:]:
