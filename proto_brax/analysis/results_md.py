@@ -387,9 +387,11 @@ def critic_switch(table) -> list[str]:
         return []
     return ["### The critic at the offline → online switch", "",
             "Critic loss: the bundle's over pretraining's last chunk (offline batches), then online over the first "
-            "and the last evaluation period (the method's batches), means over seeds; Q mean likewise. A loss that "
-            "jumps by the same factor under every method, penalty or not, comes from the critic's switch (its "
-            "targets, batches and fresh optimizer: FIDELITY.md rows 4–5), not from the actor.", "",
+            "and the last evaluation period (the method's batches), means over seeds; Q mean likewise. A jump that "
+            "every method shares, penalty or not, is the critic's switch (new targets, batches and optimizer state; "
+            "proto-official-online changes the last two: FIDELITY.md rows 4–5), not the actor's doing; whether the "
+            "policy survives it is the actor's (the final scores below: an in-sample actor such as IQL's does not "
+            "chase the new critic's Q).", "",
             "| dataset | method | critic loss, offline | online, first period | jump | online, last period | "
             "Q mean: offline → first → last |", "|---|---|---|---|---|---|---|", *rows, ""]
 
