@@ -628,6 +628,17 @@ def test_other_domains_get_a_section_with_success_rates_and_claims(tmp_path):
     assert "--domain mujoco-v5" in "\n".join(mod.domain_section(v5, tmp_path / "mujoco-v5", tmp_path / "none"))
 
 
+def test_a_method_beyond_a_domains_plan_is_tabled_but_not_counted_as_planned(tmp_path):
+    """Published: N of the planned sweeps counts the plan's (dataset, method) pairs only: an extra method (here
+    rlpd-utd1 on pen-human) read "13 of the 12 planned sweeps" on Adroit."""
+    mod = load_module()
+    root = tmp_path / "adroit"
+    for method in ("proto-sac", "rlpd-utd1"):
+        publish(root, "pen-human", method)
+    text = "\n".join(mod.domain_section(locomotion_plan.DOMAINS["adroit"], root, tmp_path / "none"))
+    assert "Published: 1 of the 12 planned sweeps" in text and "| rlpd-utd1 | 1 | 3 |" in text
+
+
 def test_offline_score_reads_the_bundle_the_method_starts_from(tmp_path):
     """proto-official starts from its eql-official bundle: its offline column is that bundle's score, not eql's (the
     column showed our eql bundle's 48.9 for proto-official on halfcheetah-medium, whose π₀ scored 44.5)."""
