@@ -373,15 +373,14 @@ def critic_switch(table) -> list[str]:
     rows = []
     for d, per in table.items():
         for m in methods_of(per):
-            runs, pre = per[m]["runs"], per[m].get("pretrained") or {}
-            mean = lambda k, runs=runs: finite_mean([r.get(k, math.nan) for r in runs])  # noqa: E731
-            first, jump = mean("critic_loss_first"), math.nan
+            runs, pre = per[m]["runs"], per[m]["pretrained"]  # (collect: NaN where the bundle or a metric is missing)
+            mean = lambda k, runs=runs: finite_mean([r[k] for r in runs])  # noqa: E731
+            first = mean("critic_loss_first")
             if not math.isfinite(first):
                 continue
-            if math.isfinite(pre.get("critic_loss", math.nan)) and pre["critic_loss"] > 0:
-                jump = first / pre["critic_loss"]
-            rows.append(f"| {d} | {m} | {fmt(pre.get('critic_loss', math.nan), 0)} | {fmt(first, 0)} | "
-                        f"{fmt(jump)}× | {fmt(mean('critic_loss_last'), 0)} | {fmt(pre.get('q_mean', math.nan), 0)} → "
+            jump = first / pre["critic_loss"] if pre["critic_loss"] > 0 else math.nan  # (False for NaN)
+            rows.append(f"| {d} | {m} | {fmt(pre['critic_loss'], 0)} | {fmt(first, 0)} | {fmt(jump)}× | "
+                        f"{fmt(mean('critic_loss_last'), 0)} | {fmt(pre['q_mean'], 0)} → "
                         f"{fmt(mean('q_mean_first'), 0)} → {fmt(mean('q_mean_last'), 0)} |")
     if not rows:
         return []

@@ -22,7 +22,7 @@ def iqm_ci(x, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0) 
 
 def mean_ci(x, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
     """(mean, low, high) with a percentile bootstrap over the values (evaluation episodes); NaNs dropped first."""
-    return bootstrap_ci(x, lambda v, axis=-1: np.mean(v, axis=axis), confidence, n_resamples, seed)
+    return bootstrap_ci(x, np.mean, confidence, n_resamples, seed)
 
 
 def bootstrap_ci(x, statistic, confidence: float, n_resamples: int, seed: int) -> tuple[float, float, float]:

@@ -284,13 +284,19 @@ def rebuild_command(path: str | os.PathLike, meta: dict[str, Any]) -> str:
             f"--seeds {seeds} --steps {meta.get('steps')} --hidden {hidden}{policy}{hp} --out {path} --overwrite")
 
 
+def bundle_net(meta: dict[str, Any]):
+    """The bundle's NetworkConfig, from its metadata (JSON keeps ``hidden`` as a list)."""
+    from proto_brax.networks import NetworkConfig
+
+    return NetworkConfig(**{**meta["net"], "hidden": tuple(meta["net"]["hidden"])})
+
+
 def bundle_template(meta: dict[str, Any]):
     """An OfflineState of the bundle's shapes (leading seed axis), built from its metadata alone."""
     from proto_brax.agents.insample import OfflineHParams, init_offline_state
-    from proto_brax.networks import NetworkConfig, make_networks
+    from proto_brax.networks import make_networks
 
-    net = NetworkConfig(**{**meta["net"], "hidden": tuple(meta["net"]["hidden"])})
-    nets = make_networks(net, meta["act_size"])
+    nets = make_networks(bundle_net(meta), meta["act_size"])
     hp = OfflineHParams.create(**{k: v for k, v in meta["hparams"].items() if k in OfflineHParams.__dataclass_fields__})
     keys = jax.random.split(jax.random.PRNGKey(0), len(meta["seeds"]))
     from proto_brax.agents.registry import TEMPERATURE_ALGOS, VALUE_ALGOS

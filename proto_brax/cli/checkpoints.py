@@ -64,14 +64,12 @@ def evaluate_bundle(path: str | Path, episodes: int | None = None, repeats: int 
     import jax.numpy as jnp
     import numpy as np
 
-    from proto_brax.checkpoints import load_bundle
-    from proto_brax.networks import NetworkConfig
+    from proto_brax.checkpoints import bundle_net, load_bundle
     from proto_brax.train.offline import PretrainConfig, make_pretrain
 
     state, meta = load_bundle(path)
-    net = NetworkConfig(**{**meta["net"], "hidden": tuple(meta["net"]["hidden"])})
     episodes = episodes or meta.get("offline_eval", {}).get("episodes", PretrainConfig.eval_episodes)
-    pre = make_pretrain(PretrainConfig(algo=meta["algo"], env=meta["env"], net=net, steps=1, log_every=1,
+    pre = make_pretrain(PretrainConfig(algo=meta["algo"], env=meta["env"], net=bundle_net(meta), steps=1, log_every=1,
                                        eval_episodes=episodes))
     seeds = jax.vmap(jax.random.PRNGKey)(jnp.asarray(meta["seeds"], jnp.uint32))
     keys = jax.vmap(lambda k: jax.vmap(lambda r: jax.random.fold_in(k, r))(jnp.arange(repeats)))(seeds)
