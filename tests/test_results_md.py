@@ -628,6 +628,29 @@ def test_other_domains_get_a_section_with_success_rates_and_claims(tmp_path):
     assert "--domain mujoco-v5" in "\n".join(mod.domain_section(v5, tmp_path / "mujoco-v5", tmp_path / "none"))
 
 
+def test_a_goal_task_gets_its_final_steps_to_goal_over_the_runs_that_reached_it(tmp_path):
+    """AntMaze's evaluations log steps_to_goal (the successful episodes' mean length, NaN when none succeeded): the
+    dataset table gets a column with its mean over the runs whose final evaluation reached the goal, and how many
+    did; a domain whose evaluations log none (Adroit) gets no such column."""
+    mod = load_module()
+    root = tmp_path / "antmaze"
+    finals = {"proto-sac": (400.0, math.nan, 610.0), "frozen": (math.nan,) * 3}
+    for method, goal in finals.items():
+        d = publish(root, "antmaze-umaze-diverse", method)
+        rows = [json.loads(line) for line in gzip.open(d / "metrics.jsonl.gz", "rt")]
+        with gzip.open(d / "metrics.jsonl.gz", "wt") as f:  # an earlier evaluation's length must not count
+            f.write("\n".join(json.dumps({**r, "success_rate": 0.5, "steps_to_goal": goal[r["seed"]]
+                                          if r["step"] == STEPS[-1] else 1.0}) for r in rows) + "\n")
+    text = "\n".join(mod.domain_section(locomotion_plan.DOMAINS["antmaze"], root, tmp_path / "none"))
+    assert "| final success IQM [95% CI] | final steps to goal | buffer data |" in text
+    assert "| 0.50 [0.50, 0.50] | 505 (2 of 3) |" in text  # (400 + 610) / 2; seed 1 never reached it
+    assert "| 0.50 [0.50, 0.50] | – (0 of 3) |" in text
+    adroit = tmp_path / "adroit"
+    publish(adroit, "pen-human", "proto-sac")
+    assert "steps to goal |" not in "\n".join(mod.domain_section(locomotion_plan.DOMAINS["adroit"], adroit,
+                                                                    tmp_path / "none"))
+
+
 def test_a_method_beyond_a_domains_plan_is_tabled_but_not_counted_as_planned(tmp_path):
     """Published: N of the planned sweeps counts the plan's (dataset, method) pairs only: an extra method (here
     rlpd-utd1 on pen-human) read "13 of the 12 planned sweeps" on Adroit."""

@@ -99,6 +99,9 @@ def run_scores(sweep: Sweep) -> list[dict]:
                     "initial": init[0]["normalized_score"] if init else math.nan,
                     "drop": float(lowest_early_scores([rows])[0]), "final": curve[-1],
                     "success_final": float(rows[-1].get("success_rate", math.nan)),  # Adroit, AntMaze
+                    # AntMaze: the mean length of the final evaluation's successful episodes (NaN: none succeeded)
+                    "goal_task": "steps_to_goal" in rows[-1],
+                    "goal_steps_final": float(rows[-1].get("steps_to_goal", math.nan)),
                     "late": float(np.mean(curve[-LATE_EVALS:])), "lowest": min(curve),
                     "diverged": r.diverged, "steps": [row["step"] for row in rows], "curve": curve})
     return out
@@ -217,22 +220,31 @@ def pinned_builds(record: Path) -> set[str]:
 
 def dataset_table(dataset: str, per: dict[str, dict], before: dict, domain: Domain = LOCOMOTION) -> list[str]:
     """One dataset's methods: offline score, initial, drop, final, seeds, buffer data; with a success column where
-    the evaluations report one (Adroit, AntMaze: the final evaluation's success rate, IQM [95% CI] over seeds)."""
+    the evaluations report one (Adroit, AntMaze: the final evaluation's success rate, IQM [95% CI] over seeds) and a
+    steps-to-goal column where they report that (AntMaze, the paper's Fig. 5)."""
     methods = " ".join(m for m in methods_of(per))
     where = "" if domain is LOCOMOTION else f" --domain {domain.name}"
     success = any(math.isfinite(r["success_final"]) for m in methods_of(per) for r in per[m]["runs"])
+    goal = any(r["goal_task"] for m in methods_of(per) for r in per[m]["runs"])
     lines = [f"### {dataset}", "",
              f"`python benchmarks/locomotion.py run{where} --datasets {dataset} --methods {methods}`, then "
              "`python benchmarks/results_md.py`.", "",
              "| method | offline | initial (π₀) | lowest in first 10% | final mean ± std | final IQM [95% CI] "
-             f"| seeds |{' final success IQM [95% CI] |' * success} buffer data |",
-             "|---|---|---|---|---|---|---|---|" + "---|" * success]
+             f"| seeds |{' final success IQM [95% CI] |' * success}{' final steps to goal |' * goal} buffer data |",
+             "|---|---|---|---|---|---|---|---|" + "---|" * (success + goal)]
     for m in methods_of(per):
-        rate = f" {success_cell(per[m]['runs'])} |" * success
+        rate = f" {success_cell(per[m]['runs'])} |" * success + f" {goal_cell(per[m]['runs'])} |" * goal
         lines.append(f"| {label(m, per[m], dataset, before)} | {fmt(per[m]['offline'])} | "
                      f"{score_cells(per[m]['runs'])} |{rate} "
                      f"{buffer_data(per[m]['config'])} |")
     return lines + ["", f"![{dataset} learning curves](results/{domain.name}/{dataset}/curves.png)", ""]
+
+
+def goal_cell(runs: list[dict]) -> str:
+    """The final evaluations' steps to the goal: the mean over the runs whose final evaluation reached it, and how
+    many did (a run that never reaches the goal has no length to average)."""
+    reached = [r["goal_steps_final"] for r in runs if math.isfinite(r["goal_steps_final"])]
+    return f"{fmt(float(np.mean(reached)), 0) if reached else '–'} ({len(reached)} of {len(runs)})"
 
 
 def success_cell(runs: list[dict]) -> str:
