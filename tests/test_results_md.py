@@ -628,6 +628,26 @@ def test_other_domains_get_a_section_with_success_rates_and_claims(tmp_path):
     assert "--domain mujoco-v5" in "\n".join(mod.domain_section(v5, tmp_path / "mujoco-v5", tmp_path / "none"))
 
 
+def test_the_page_says_how_many_pretrained_seeds_the_sweeps_start_from(tmp_path):
+    """A one-seed bundle is broadcast to every run seed, so its runs share π₀: the page counts those sweeps among the
+    sweeps that start from a bundle (a sweep without one, or whose record lacks the seeds, is not counted) and names
+    the sweeps whose bundle has one seed per run."""
+    mod = load_module()
+    root = tmp_path / "locomotion"
+    bundle_seeds = {"proto-sac": [0], "frozen": [0], "rlpd-utd1": [0, 1, 2], "sac-scratch": None,
+                    "direct": "unrecorded"}
+    for method, seeds in bundle_seeds.items():
+        d = publish(root, "hopper-medium", method)
+        config = json.loads((d / "config.json").read_text())
+        if seeds is not None:
+            config["checkpoint_metadata"] = {} if seeds == "unrecorded" else {"seeds": seeds}
+        (d / "config.json").write_text(json.dumps(config))
+    text = "\n".join(mod.pretrained_seeds(mod.collect(root, tmp_path / "none")))
+    assert text.startswith("**Pretrained seeds:** 2 of the 3 sweeps that start from a bundle finetune every run")
+    assert "Bundles with several seeds (one per run seed): 3 pretrained seeds: hopper-medium/rlpd-utd1." in text
+    assert mod.pretrained_seeds({}) == []
+
+
 def test_a_goal_task_gets_its_final_steps_to_goal_over_the_runs_that_reached_it(tmp_path):
     """AntMaze's evaluations log steps_to_goal (the successful episodes' mean length, NaN when none succeeded): the
     dataset table gets a column with its mean over the runs whose final evaluation reached the goal, and how many

@@ -284,6 +284,27 @@ def provenance(table, pinned: set[str]) -> list[str]:
             "`benchmarks/results/datasets.json` lists every build (`python benchmarks/datasets_record.py`).", ""]
 
 
+def pretrained_seeds(table) -> list[str]:
+    """How many pretrained seeds the published sweeps start from. A one-seed bundle is broadcast to every run seed
+    (``experiment.plan``), so those runs share π₀ and differ online only: their CIs hold no pretraining variance."""
+    counts: dict[int, list[str]] = {}
+    for d, per in sorted(table.items()):
+        for m, sweep in sorted(per.items()):
+            meta = sweep["config"].get("checkpoint_metadata") or {}
+            if "seeds" in meta:
+                counts.setdefault(len(meta["seeds"]), []).append(f"{d}/{m}")
+    if not counts:
+        return []
+    one, total = len(counts.get(1, [])), sum(map(len, counts.values()))
+    several = "; ".join(f"{n} pretrained seeds: {', '.join(v)}" for n, v in sorted(counts.items()) if n != 1)
+    return [f"**Pretrained seeds:** {one} of the {total} sweeps that start from a bundle finetune every run from its "
+            "one pretrained seed (broadcast to every run seed), so their runs share π₀ and differ online only "
+            "(exploration, batches, evaluation episodes): their CIs hold no pretraining variance. "
+            f"{f'Bundles with several seeds (one per run seed): {several}. ' if several else ''}"
+            "`python -m proto_brax.pretrain --seeds 0 1 2 3 4` makes a bundle with one pretrained seed per run seed.",
+            ""]
+
+
 def merged_sweeps(table) -> list[str]:
     """The published sweeps that ran seed by seed (``locomotion.py run --per-seed``), merged from their parts."""
     merged = [f"{d}/{m}" for d, per in sorted(table.items()) for m in sorted(per)
@@ -751,7 +772,7 @@ def render(args: Args) -> tuple[str, str]:
     covered = coverage(table) + td3_fix_status(table, before)  # the page and the README
     claimed = claims(table, claim_cost(args, cost))
     lines += covered
-    lines += provenance(table, pinned_builds(args.record)) + merged_sweeps(table)
+    lines += provenance(table, pinned_builds(args.record)) + merged_sweeps(table) + pretrained_seeds(table)
     lines += claimed
     lines += ["## Aggregate over datasets", "", "`python benchmarks/results_md.py` over every published sweep "
               "(`benchmarks/results/locomotion/aggregate.json` holds the curves).", "",
@@ -814,6 +835,7 @@ def domain_section(domain: Domain, results: Path, bundles: Path) -> list[str]:
     lines += [f"`{run}`, preset `{domain.preset}`; online budget {', '.join(f'{b:,}' for b in budgets)} steps per run "
               f"(the paper: 10⁶), {horizon}. Published: {done} of the {len(domain.datasets) * len(domain.methods)} "
               f"planned sweeps ({len(domain.datasets)} datasets × {', '.join(domain.methods)}).", ""]
+    lines += pretrained_seeds(table)
     curves = aggregate_curves(table, results / "aggregate.png", f"All {domain.name} datasets")
     write_json_atomic(results / "aggregate.json", curves)
     lines += [f"![{domain.name} aggregate](results/{domain.name}/aggregate.png)", "",
