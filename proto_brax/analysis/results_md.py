@@ -233,9 +233,9 @@ def dataset_table(dataset: str, per: dict[str, dict], before: dict, domain: Doma
              f"| seeds |{' final success IQM [95% CI] |' * success}{' final steps to goal |' * goal} buffer data |",
              "|---|---|---|---|---|---|---|---|" + "---|" * (success + goal)]
     for m in methods_of(per):
-        rate = f" {success_cell(per[m]['runs'])} |" * success + f" {goal_cell(per[m]['runs'])} |" * goal
+        rates = f" {success_cell(per[m]['runs'])} |" * success + f" {goal_cell(per[m]['runs'])} |" * goal
         lines.append(f"| {label(m, per[m], dataset, before)} | {fmt(per[m]['offline'])} | "
-                     f"{score_cells(per[m]['runs'])} |{rate} "
+                     f"{score_cells(per[m]['runs'])} |{rates} "
                      f"{buffer_data(per[m]['config'])} |")
     return lines + ["", f"![{dataset} learning curves](results/{domain.name}/{dataset}/curves.png)", ""]
 
@@ -243,8 +243,8 @@ def dataset_table(dataset: str, per: dict[str, dict], before: dict, domain: Doma
 def goal_cell(runs: list[dict]) -> str:
     """The final evaluations' steps to the goal: the mean over the runs whose final evaluation reached it, and how
     many did (a run that never reaches the goal has no length to average)."""
-    reached = [r["goal_steps_final"] for r in runs if math.isfinite(r["goal_steps_final"])]
-    return f"{fmt(float(np.mean(reached)), 0) if reached else '–'} ({len(reached)} of {len(runs)})"
+    steps = [r["goal_steps_final"] for r in runs]
+    return f"{fmt(finite_mean(steps), 0)} ({sum(map(math.isfinite, steps))} of {len(runs)})"
 
 
 def success_cell(runs: list[dict]) -> str:
